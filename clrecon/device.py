@@ -1,0 +1,290 @@
+"""OpenCL device layer: enumerate and choose devices, profiling queues, cached program builds.
+
+The library never prints; everything here either returns data or raises
+:class:`~clrecon.errors.DeviceError` / :class:`~clrecon.errors.KernelBuildError`.
+
+Choosing a device: ``get_device(spec)`` with ``spec`` an index into :func:`list_devices`, a
+case-insensitive substring of ``"platform / device"``, or ``None`` (then the environment
+variable ``CLRECON_DEVICE``, then the first GPU, then the first device).
+
+Programs are built from ``kernels/<name>.cl`` with ``-I kernels/`` and ``-D NAME=VALUE``
+options and cached per context, keyed by the source text, the text of every header in
+``kernels/`` and the options; ``cl.Kernel`` objects are cached per program.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, Union
+
+import numpy as np
+import pyopencl as cl
+
+from ._resources import kernels_dir
+from .errors import DeviceError, KernelBuildError
+
+ENV_DEVICE = "CLRECON_DEVICE"
+
+DeviceSpec = Union[int, str, None]
+Defines = Mapping[str, Union[int, float, str, bool]]
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """What a person (and the tuning database) needs to know about one OpenCL device."""
+
+    index: int
+    platform: str
+    platform_version: str
+    name: str
+    vendor: str
+    driver: str
+    version: str
+    device_type: str
+    compute_units: int
+    global_mem_bytes: int
+    local_mem_bytes: int
+    max_work_group_size: int
+    image_support: bool
+    int64_atomics: bool
+    native_float_atomics: bool
+
+    @property
+    def label(self) -> str:
+        return f"{self.platform} / {self.name}"
+
+    @property
+    def atomics(self) -> str:
+        """Short description of the float accumulation paths this device gets."""
+        float_path = "native float add" if self.native_float_atomics else "float CAS loop"
+        fixed = "int64 fixed point" if self.int64_atomics else "no int64 atomics"
+        return f"{float_path}, {fixed}"
+
+    def fingerprint(self) -> dict:
+        """Identity used as a tuning-database key (platform kept apart from hardware vendor)."""
+        return {
+            "platform": self.platform,
+            "platform_version": self.platform_version,
+            "vendor": self.vendor,
+            "device": self.name,
+            "driver": self.driver,
+            "device_type": self.device_type,
+            "compute_units": self.compute_units,
+        }
+
+
+def _type_name(bits: int) -> str:
+    for flag, name in ((cl.device_type.GPU, "GPU"), (cl.device_type.CPU, "CPU"),
+                       (cl.device_type.ACCELERATOR, "ACCELERATOR")):
+        if bits & flag:
+            return name
+    return "OTHER"
+
+
+def _info(index: int, dev: cl.Device) -> DeviceInfo:
+    ext = dev.extensions.split()
+    return DeviceInfo(
+        index=index,
+        platform=dev.platform.name.strip(),
+        platform_version=dev.platform.version.strip(),
+        name=dev.name.strip(),
+        vendor=dev.vendor.strip(),
+        driver=dev.driver_version.strip(),
+        version=dev.version.strip(),
+        device_type=_type_name(dev.type),
+        compute_units=int(dev.max_compute_units),
+        global_mem_bytes=int(dev.global_mem_size),
+        local_mem_bytes=int(dev.local_mem_size),
+        max_work_group_size=int(dev.max_work_group_size),
+        image_support=bool(dev.image_support),
+        int64_atomics="cl_khr_int64_base_atomics" in ext,
+        native_float_atomics="cl_ext_float_atomics" in ext,
+    )
+
+
+def _all_devices() -> list[cl.Device]:
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as exc:  # no ICD at all
+        raise DeviceError(
+            "no OpenCL platform found; install a driver (e.g. `apt-get install "
+            "pocl-opencl-icd` for the CPU)"
+        ) from exc
+    devices = []
+    for plat in platforms:
+        try:
+            devices.extend(plat.get_devices())
+        except cl.Error:  # a platform with no devices of any type
+            continue
+    return devices
+
+
+def list_devices() -> list[DeviceInfo]:
+    """Every OpenCL device on every platform, in a stable order (the index of ``--device``)."""
+    return [_info(i, d) for i, d in enumerate(_all_devices())]
+
+
+def _pick(spec: DeviceSpec) -> tuple[int, cl.Device]:
+    devices = _all_devices()
+    if not devices:
+        raise DeviceError("no OpenCL device found on any platform")
+    if spec is None:
+        spec = os.environ.get(ENV_DEVICE) or None
+    if spec is None:
+        gpus = [i for i, d in enumerate(devices) if d.type & cl.device_type.GPU]
+        i = gpus[0] if gpus else 0
+        return i, devices[i]
+    if isinstance(spec, str) and spec.strip().isdigit():
+        spec = int(spec)
+    labels = [f"{d.platform.name.strip()} / {d.name.strip()}" for d in devices]
+    if isinstance(spec, int):
+        if not 0 <= spec < len(devices):
+            raise DeviceError(f"device index {spec} out of range; devices: {labels}")
+        return spec, devices[spec]
+    matches = [i for i, lab in enumerate(labels) if spec.lower() in lab.lower()]
+    if not matches:
+        raise DeviceError(f"no OpenCL device matches {spec!r}; devices: {labels}")
+    return matches[0], devices[matches[0]]
+
+
+@dataclass(eq=False)
+class Device:
+    """One OpenCL device with its context and an in-order profiling queue."""
+
+    info: DeviceInfo
+    device: cl.Device
+    context: cl.Context
+    queue: cl.CommandQueue = field(repr=False)
+
+    def program(self, name: str, defines: Defines | None = None) -> cl.Program:
+        return build_program(self.context, name, defines)
+
+    def kernel(self, name: str, kernel_name: str, defines: Defines | None = None) -> cl.Kernel:
+        return get_kernel(self.context, name, kernel_name, defines)
+
+
+_devices: dict[int, Device] = {}
+
+
+def get_device(spec: DeviceSpec = None) -> Device:
+    """The :class:`Device` for ``spec`` (see module docstring); one per device per process."""
+    if isinstance(spec, Device):
+        return spec
+    index, dev = _pick(spec)
+    if index not in _devices:
+        ctx = cl.Context([dev])
+        queue = cl.CommandQueue(ctx, properties=cl.command_queue_properties.PROFILING_ENABLE)
+        _devices[index] = Device(_info(index, dev), dev, ctx, queue)
+    return _devices[index]
+
+
+def from_queue(queue: cl.CommandQueue) -> DeviceInfo:
+    """Describe the device of a caller's queue (for embedding in a foreign pipeline)."""
+    devices = _all_devices()
+    for i, d in enumerate(devices):
+        if d.int_ptr == queue.device.int_ptr:
+            return _info(i, d)
+    return _info(-1, queue.device)
+
+
+# -- program building ----------------------------------------------------------------------
+
+def build_options(defines: Defines | None = None) -> list[str]:
+    """``-I kernels/`` plus ``-D NAME=VALUE`` for each define, in sorted order."""
+    opts = [f"-I{kernels_dir()}"]
+    for key in sorted(defines or {}):
+        val = defines[key]
+        if isinstance(val, bool):
+            val = int(val)
+        if isinstance(val, float):
+            val = f"{val!r}f"
+        opts.append(f"-D{key}={val}")
+    return opts
+
+
+def kernel_source(name: str) -> str:
+    """Text of ``kernels/<name>.cl`` (``name`` with or without the extension)."""
+    path = kernels_dir() / (name if name.endswith(".cl") else f"{name}.cl")
+    if not path.is_file():
+        raise FileNotFoundError(f"kernel file {path} not found")
+    return path.read_text()
+
+
+def _headers_digest() -> str:
+    h = hashlib.sha256()
+    for p in sorted(kernels_dir().glob("*.h")):
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def source_hash(name: str) -> str:
+    """Hash of a kernel file together with every shared header (tuning entries key on it)."""
+    return hashlib.sha256((kernel_source(name) + _headers_digest()).encode()).hexdigest()[:16]
+
+
+_programs: dict[tuple, tuple[cl.Context, cl.Program]] = {}
+_kernels: dict[tuple, cl.Kernel] = {}
+
+
+def build_source(
+    context: cl.Context, source: str, defines: Defines | None = None, label: str = "<source>"
+) -> cl.Program:
+    """Build OpenCL C ``source`` for ``context`` (cached; includes resolve in ``kernels/``)."""
+    options = build_options(defines)
+    key = (context.int_ptr, hashlib.sha256(source.encode()).hexdigest(), _headers_digest(),
+           tuple(options))
+    hit = _programs.get(key)
+    if hit is not None:
+        return hit[1]
+    prg = cl.Program(context, source)
+    try:
+        # pyopencl's own binary cache would not see edits of included headers reliably
+        prg.build(options=options, cache_dir=False)
+    except cl.Error as exc:
+        log = _build_log(prg, context) or str(exc)
+        raise KernelBuildError(label, options, log) from exc
+    _programs[key] = (context, prg)
+    return prg
+
+
+def _build_log(prg: cl.Program, context: cl.Context) -> str:
+    logs = []
+    for dev in context.devices:
+        try:
+            logs.append(prg.get_build_info(dev, cl.program_build_info.LOG))
+        except cl.Error:
+            pass
+    return "\n".join(x for x in logs if x and x.strip())
+
+
+def build_program(context: cl.Context, name: str, defines: Defines | None = None) -> cl.Program:
+    """Build ``kernels/<name>.cl`` for ``context`` with ``defines`` (cached)."""
+    return build_source(context, kernel_source(name), defines, label=f"kernels/{name}.cl")
+
+
+def get_kernel(
+    context: cl.Context, name: str, kernel_name: str, defines: Defines | None = None
+) -> cl.Kernel:
+    """A cached ``cl.Kernel`` for ``kernel_name`` in ``kernels/<name>.cl``."""
+    prg = build_program(context, name, defines)
+    key = (id(prg), kernel_name)
+    k = _kernels.get(key)
+    if k is None:
+        k = cl.Kernel(prg, kernel_name)
+        _kernels[key] = k
+    return k
+
+
+def event_ms(event: cl.Event) -> float:
+    """Device time of a completed profiling event, in milliseconds."""
+    return (event.profile.end - event.profile.start) * 1e-6
+
+
+def fixed_to_float(values, shift: int = 20):
+    """Convert int64 fixed-point sums written by ``atomic_add_fixed`` to float32."""
+    return (np.asarray(values, dtype=np.int64).astype(np.float64) / float(1 << shift)).astype(
+        np.float32
+    )
