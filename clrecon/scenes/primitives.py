@@ -1,0 +1,172 @@
+"""Scene description: analytic primitives, materials and the thin-lens camera (pure NumPy).
+
+Camera space is the world: the camera sits at the origin looking down +z, x right, y down
+(so "up" is -y). Objects move linearly over the shutter, parallel to the image plane
+(velocity z must be 0): that keeps screen motion exactly linear and depth constant, as the
+sample-buffer convention assumes. Positions are given at mid-shutter (t = 0.5).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Union
+
+import numpy as np
+
+from ..camera import ThinLensCamera
+
+OBJ_STRIDE = 32
+TEXTURES = {"flat": 0, "checker": 1, "stripe": 2}
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Material:
+    """Flat colour, or a checker/stripe of ``color`` and ``color2`` with period ``period``.
+
+    ``emission > 0`` makes the surface unlit with radiance ``color * emission`` (HDR
+    highlights, flat-shaded objects).
+    """
+
+    color: Vec3 = (0.7, 0.7, 0.7)
+    color2: Vec3 = (0.1, 0.1, 0.1)
+    texture: str = "flat"
+    period: float = 1.0
+    emission: float = 0.0
+
+    def __post_init__(self):
+        if self.texture not in TEXTURES:
+            raise ValueError(f"texture: {self.texture!r} not in {sorted(TEXTURES)}")
+        if not self.period > 0:
+            raise ValueError(f"period: must be positive, got {self.period}")
+
+
+def rotation(rx: float = 0.0, ry: float = 0.0, rz: float = 0.0) -> np.ndarray:
+    """Rows are the local axes e0, e1, e2 after rotating by rz, ry, rx degrees about x, y, z."""
+    ax, ay, az = (math.radians(a) for a in (rx, ry, rz))
+    mx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    my = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    mz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return (mz @ my @ mx).T
+
+
+@dataclass(frozen=True)
+class Sphere:
+    centre: Vec3
+    radius: float
+    material: Material = field(default_factory=Material)
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Quad:
+    """A rectangle of half extents ``half`` in its local (e0, e1) plane, normal e2.
+
+    With no rotation it faces the camera (normal along z)."""
+
+    centre: Vec3
+    half: tuple[float, float]
+    material: Material = field(default_factory=Material)
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    rotate: Vec3 = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Box:
+    """An oriented box (axis aligned when ``rotate`` is zero) of half extents ``half``."""
+
+    centre: Vec3
+    half: Vec3
+    material: Material = field(default_factory=Material)
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    rotate: Vec3 = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Plane:
+    """An infinite plane through ``centre``; with no rotation it faces the camera."""
+
+    centre: Vec3
+    material: Material = field(default_factory=Material)
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    rotate: Vec3 = (0.0, 0.0, 0.0)
+
+
+Primitive = Union[Sphere, Quad, Box, Plane]
+_TYPE = {Sphere: 0, Quad: 1, Box: 2, Plane: 3}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Primitives, light and a thin-lens camera given independently of the image size.
+
+    ``fov_deg`` is the horizontal field of view; CoC and motion in pixels scale with the
+    image width. ``default_size`` is the size the scene's description (e.g. "CoC > 50 px")
+    refers to.
+    """
+
+    name: str
+    objects: tuple
+    fov_deg: float = 50.0
+    focus_depth: float = 5.0
+    lens_radius: float = 0.0
+    light_dir: Vec3 = (-0.4, -0.7, -0.6)
+    ambient: float = 0.35
+    background: Vec3 = (0.05, 0.06, 0.08)
+    default_size: tuple[int, int] = (512, 512)
+    description: str = ""
+
+    def __post_init__(self):
+        for k, ob in enumerate(self.objects):
+            if type(ob) not in _TYPE:
+                raise TypeError(f"objects[{k}]: not a primitive: {type(ob).__name__}")
+            if ob.velocity[2] != 0.0:
+                raise ValueError(
+                    f"objects[{k}]: velocity z must be 0 (motion parallel to the image plane "
+                    f"keeps screen motion linear), got {ob.velocity}"
+                )
+        if self.lens_radius < 0 or not self.focus_depth > 0:
+            raise ValueError("lens_radius must be >= 0 and focus_depth > 0")
+
+    def camera(self, width: int, height: int) -> ThinLensCamera:
+        return ThinLensCamera.from_fov(width, height, self.fov_deg, focus_depth=self.focus_depth,
+                                       lens_radius=self.lens_radius)
+
+    @property
+    def has_motion(self) -> bool:
+        return any(any(v != 0 for v in ob.velocity) for ob in self.objects)
+
+    def pack(self) -> np.ndarray:
+        """Object records for ``kernels/raytrace.cl`` (float32, (n, OBJ_STRIDE))."""
+        out = np.zeros((max(len(self.objects), 1), OBJ_STRIDE), np.float32)
+        for k, ob in enumerate(self.objects):
+            r = out[k]
+            m = ob.material
+            r[0] = _TYPE[type(ob)]
+            r[1] = TEXTURES[m.texture]
+            r[2] = m.emission
+            r[3] = m.period
+            r[4:7] = ob.centre
+            r[8:11] = ob.velocity
+            axes = rotation(*getattr(ob, "rotate", (0.0, 0.0, 0.0)))
+            half = {Sphere: (0, 0, 0), Plane: (0, 0, 0)}.get(type(ob))
+            if half is None:
+                half = tuple(ob.half) + (0.0,) * (3 - len(ob.half))
+            if isinstance(ob, Sphere):
+                r[7] = ob.radius
+            # bounding sphere over the whole shutter (slot 11): the kernel's cheap reject
+            reach = {Sphere: lambda: ob.radius, Plane: lambda: math.inf}.get(
+                type(ob), lambda: math.hypot(*half))()
+            r[11] = reach + 0.5 * math.hypot(*ob.velocity)
+            for j in range(3):
+                r[12 + 4 * j: 15 + 4 * j] = axes[j]
+                r[15 + 4 * j] = half[j]
+            r[24:27] = m.color
+            r[28:31] = m.color2
+        return out
+
+    def light(self) -> np.ndarray:
+        """float4 (direction to the light, normalised; ambient) for the kernel."""
+        d = np.asarray(self.light_dir, np.float64)
+        d = d / np.linalg.norm(d)
+        return np.array([*d, self.ambient], np.float32)

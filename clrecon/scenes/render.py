@@ -1,0 +1,96 @@
+"""Render sample buffers and converged references of a :class:`Scene` with
+``kernels/raytrace.cl``. Long renders run in chunks and report through ``progress(done,
+total)``; the library itself never prints."""
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import numpy as np
+import pyopencl as cl
+
+from ..device import Device, DeviceSpec, get_kernel
+from ..device import get_device as _get_device
+from ..samples import SampleBuffer
+from .primitives import Scene
+
+Progress = Optional[Callable[[int, int], None]]
+
+#: samples per launch when rendering sample buffers (bounds latency of one launch)
+CHUNK_SAMPLES = 1 << 22
+#: samples per pixel per launch of the reference kernel
+REFERENCE_CHUNK = 32
+
+
+def _check_size(width: int, height: int, spp: int) -> None:
+    for name, v in (("width", width), ("height", height), ("spp", spp)):
+        if not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{name}: must be a positive integer, got {v!r}")
+
+
+def _common_args(scene: Scene, width: int, height: int, ctx: cl.Context):
+    cam = scene.camera(width, height)
+    objs = scene.pack()
+    dobjs = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=objs)
+    cx, cy = cam.centre
+    bg = np.array([*scene.background, 0.0], np.float32)
+    camera = [np.float32(cx), np.float32(cy), np.float32(cam.focal_px),
+              np.float32(cam.focus_depth), np.float32(cam.lens_radius)]
+    return cam, dobjs, np.int32(len(scene.objects)), camera, scene.light(), bg
+
+
+def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 0,
+                   device: DeviceSpec | Device = None, progress: Progress = None) -> SampleBuffer:
+    """Trace ``spp`` stochastic samples per pixel; the buffer follows the convention exactly."""
+    _check_size(width, height, spp)
+    dev = _get_device(device)
+    ctx, q = dev.context, dev.queue
+    cam, dobjs, nobj, camera, light, bg = _common_args(scene, width, height, ctx)
+    n = width * height * spp
+    buf = SampleBuffer.zeros(0, 0, 0, cam.coc_model)  # shapes set below
+    arrays = {"color": (n, 3), "position": (n, 2), "depth": (n,), "lens": (n, 2), "time": (n,),
+              "motion": (n, 2)}
+    dbufs = {k: cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * int(np.prod(s)))
+             for k, s in arrays.items()}
+    kernel = get_kernel(ctx, "raytrace", "raytrace_samples")
+    rows = max(1, CHUNK_SAMPLES // (width * spp))
+    gx = -(-width // 8) * 8
+    for row0 in range(0, height, rows):
+        count = min(rows, height - row0)
+        kernel.set_args(dobjs, nobj, np.int32(width), np.int32(height), np.int32(spp),
+                        np.int32(row0), np.uint32(seed & 0xFFFFFFFF), *camera, light, bg,
+                        *(dbufs[k] for k in arrays))
+        cl.enqueue_nd_range_kernel(q, kernel, (gx, -(-count // 8) * 8), (8, 8))
+        if progress is not None:
+            q.finish()
+            progress((row0 + count) * width * spp, n)
+    for k, shape in arrays.items():
+        host = np.empty(shape, np.float32)
+        cl.enqueue_copy(q, host, dbufs[k])
+        setattr(buf, k, host.reshape((height, width, spp) + shape[1:]))
+    q.finish()
+    return buf
+
+
+def render_reference(scene: Scene, width: int, height: int, spp: int = 1024, seed: int = 1,
+                     device: DeviceSpec | Device = None, progress: Progress = None) -> np.ndarray:
+    """Converged image: lens, shutter and pixel area integrated with ``spp`` samples per pixel
+    (box pixel filter), accumulated in float64 on the host over chunks."""
+    _check_size(width, height, spp)
+    dev = _get_device(device)
+    ctx, q = dev.context, dev.queue
+    cam, dobjs, nobj, camera, light, bg = _common_args(scene, width, height, ctx)
+    kernel = get_kernel(ctx, "raytrace", "raytrace_reference")
+    dout = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=width * height * 12)
+    acc = np.zeros((height, width, 3), np.float64)
+    part = np.empty((height, width, 3), np.float32)
+    gsize = (-(-width // 8) * 8, -(-height // 8) * 8)
+    for first in range(0, spp, REFERENCE_CHUNK):
+        count = min(REFERENCE_CHUNK, spp - first)
+        kernel.set_args(dobjs, nobj, np.int32(width), np.int32(height), np.uint32(first),
+                        np.uint32(count), np.uint32(seed & 0xFFFFFFFF), *camera, light, bg, dout)
+        cl.enqueue_nd_range_kernel(q, kernel, gsize, (8, 8))
+        cl.enqueue_copy(q, part, dout)
+        acc += part.astype(np.float64) * count
+        if progress is not None:
+            progress(first + count, spp)
+    return (acc / spp).astype(np.float32)
