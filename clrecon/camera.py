@@ -75,6 +75,16 @@ class ThinLensCamera:
     focus_depth: float = 1.0
     lens_radius: float = 0.0
 
+    def __post_init__(self):
+        if self.width < 1 or self.height < 1:
+            raise ValueError(f"width, height: must be positive, got {self.width}x{self.height}")
+        if not (self.focal_px > 0 and math.isfinite(self.focal_px)):
+            raise ValueError(f"focal_px: must be positive and finite, got {self.focal_px}")
+        if not (self.focus_depth > 0 and math.isfinite(self.focus_depth)):
+            raise ValueError(f"focus_depth: must be positive and finite, got {self.focus_depth}")
+        if not (self.lens_radius >= 0 and math.isfinite(self.lens_radius)):
+            raise ValueError(f"lens_radius: must be >= 0 and finite, got {self.lens_radius}")
+
     @classmethod
     def from_fov(cls, width: int, height: int, fov_deg: float, **kw) -> ThinLensCamera:
         """Camera whose horizontal field of view is ``fov_deg`` degrees."""

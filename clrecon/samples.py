@@ -49,8 +49,8 @@ class FrameInfo:
     width: int
     height: int
     spp: int
-    max_abs_coc: float
-    max_abs_motion: float
+    max_abs_coc: float  # pixels, over every sample (misses: |C1|)
+    max_abs_motion: float  # pixels, longest motion vector
     min_depth: float
     max_depth: float
     miss_fraction: float
@@ -163,15 +163,16 @@ class SampleBuffer:
     def inspect(self) -> FrameInfo:
         """One pass over the frame: the facts that decide which terms a kernel needs."""
         hit = self.depth < MISS_DEPTH
-        coc = np.abs(self.coc()[hit]) if hit.any() else np.zeros(1, np.float32)
+        # misses keep their lens term: coc(inf) = C1 (the background is defocused too)
+        coc = np.abs(self.coc())
         hit_depth = self.depth[hit] if hit.any() else np.array([np.inf], np.float32)
-        motion = np.abs(self.motion).max(initial=0.0)
+        motion = np.sqrt((self.motion.astype(np.float64) ** 2).sum(-1))
         return FrameInfo(
             width=self.width,
             height=self.height,
             spp=self.spp,
             max_abs_coc=float(coc.max(initial=0.0)),
-            max_abs_motion=float(motion),
+            max_abs_motion=float(motion.max(initial=0.0)),
             min_depth=float(hit_depth.min()),
             max_depth=float(hit_depth.max()),
             miss_fraction=float(1.0 - hit.mean()),
