@@ -108,7 +108,5 @@ class ThinLensCamera:
         """Pinhole image (pixels) of camera-space points of shape (..., 3)."""
         p = np.asarray(points, dtype=np.float64)
         cx, cy = self.centre
-        return np.stack(
-            [cx + self.focal_px * p[..., 0] / p[..., 2], cy + self.focal_px * p[..., 1] / p[..., 2]],
-            axis=-1,
-        )
+        f = self.focal_px
+        return np.stack([cx + f * p[..., 0] / p[..., 2], cy + f * p[..., 1] / p[..., 2]], axis=-1)

@@ -66,7 +66,8 @@ class DeviceSamples:
         try:
             return self.buffers[name]
         except KeyError:
-            raise KeyError(f"field {name!r} was not uploaded (have {sorted(self.buffers)})") from None
+            have = sorted(self.buffers)
+            raise KeyError(f"field {name!r} was not uploaded (have {have})") from None
 
 
 class Pipeline:

@@ -156,9 +156,8 @@ class SampleBuffer:
         Misses (depth >= MISS_DEPTH) have ``coc = C1``; their centre is still defined.
         """
         coc = self.coc()[..., None]
-        return (self.position - coc * self.lens - (self.time[..., None] - 0.5) * self.motion).astype(
-            np.float32
-        )
+        shutter = (self.time[..., None] - 0.5) * self.motion
+        return (self.position - coc * self.lens - shutter).astype(np.float32)
 
     def inspect(self) -> FrameInfo:
         """One pass over the frame: the facts that decide which terms a kernel needs."""

@@ -93,6 +93,7 @@ def retrace(scene: Scene, width: int, height: int, position, lens, time):
             best = np.where(closer, s, best)
             col = _shade(ob, nrm[closer], uvw[closer], d[closer], light, scene.ambient)
             color[closer] = col
-            motion[closer] = f * np.asarray(ob.velocity[:2], float) / (s[closer] * d[closer, 2])[:, None]
+            depth = s[closer] * d[closer, 2]
+            motion[closer] = f * np.asarray(ob.velocity[:2], float) / depth[:, None]
     depth = best * d[:, 2]
     return color, depth, motion

@@ -10,8 +10,18 @@ from conftest import assert_close
 from raytrace_ref import retrace
 
 from clrecon.metrics import psnr
-from clrecon.scenes import (SCENES, Box, Material, Plane, Quad, Scene, Sphere, get_scene,
-                            render_reference, render_samples)
+from clrecon.scenes import (
+    SCENES,
+    Box,
+    Material,
+    Plane,
+    Quad,
+    Scene,
+    Sphere,
+    get_scene,
+    render_reference,
+    render_samples,
+)
 
 MIXED = Scene("mixed", (
     Sphere((-0.6, 0.1, 3.0), 0.5, Material((0.9, 0.3, 0.2), (0.1, 0.2, 0.9), "checker", 0.3),

@@ -155,8 +155,12 @@ class Scene:
             if isinstance(ob, Sphere):
                 r[7] = ob.radius
             # bounding sphere over the whole shutter (slot 11): the kernel's cheap reject
-            reach = {Sphere: lambda: ob.radius, Plane: lambda: math.inf}.get(
-                type(ob), lambda: math.hypot(*half))()
+            if isinstance(ob, Sphere):
+                reach = ob.radius
+            elif isinstance(ob, Plane):
+                reach = math.inf
+            else:
+                reach = math.hypot(*half)
             r[11] = reach + 0.5 * math.hypot(*ob.velocity)
             for j in range(3):
                 r[12 + 4 * j: 15 + 4 * j] = axes[j]

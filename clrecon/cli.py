@@ -1,0 +1,306 @@
+"""The ``clrecon`` command line: a thin layer that parses, calls the library and prints.
+
+Subcommands: ``devices``, ``scene``, ``reference``, ``reconstruct``, ``compare``, ``demo``
+(the quick start's main job) and ``report`` (generator throughput, reference convergence
+and box-filter quality of the built-in scenes).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+log = logging.getLogger("clrecon")
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 512x512), got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return w, h
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        return [int(v) for v in text.split(",") if v]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}") from None
+
+
+class _Bar:
+    """A tqdm progress bar usable as a ``progress(done, total)`` callback."""
+
+    def __init__(self, desc: str, unit: str = "it", scale: float = 1.0):
+        from tqdm import tqdm
+
+        self.bar = tqdm(desc=desc, unit=unit, unit_scale=True, leave=False, disable=None,
+                        file=sys.stderr)
+        self.scale = scale
+
+    def __call__(self, done: int, total: int) -> None:
+        self.bar.total = total * self.scale
+        self.bar.n = done * self.scale
+        self.bar.refresh()
+
+    def close(self):
+        self.bar.close()
+
+
+def _with_bar(desc, fn, *args, **kw):
+    bar = _Bar(desc, unit="samples")
+    try:
+        return fn(*args, progress=bar, **kw)
+    finally:
+        bar.close()
+
+
+# -- subcommands ---------------------------------------------------------------------------
+
+def cmd_devices(args) -> int:
+    from .device import list_devices
+
+    devs = list_devices()
+    if args.json:
+        print(json.dumps([d.__dict__ | {"atomics": d.atomics} for d in devs], indent=2))
+        return 0
+    for d in devs:
+        print(f"[{d.index}] {d.platform} / {d.name}")
+        print(f"    driver {d.driver}, {d.version}, type {d.device_type}")
+        print(f"    {d.compute_units} compute units, {d.global_mem_bytes / 2**30:.1f} GiB global, "
+              f"{d.local_mem_bytes / 1024:.0f} KiB local, max work-group {d.max_work_group_size}")
+        print(f"    images: {'yes' if d.image_support else 'no'}; atomics: {d.atomics}")
+    return 0
+
+
+def cmd_scene(args) -> int:
+    from .io import save_samples
+    from .scenes import get_scene, render_samples
+
+    scene = get_scene(args.name)
+    w, h = args.size or scene.default_size
+    t0 = time.perf_counter()
+    buf = _with_bar(f"render {args.name}", render_samples, scene, w, h, args.spp, seed=args.seed,
+                    device=args.device)
+    dt = time.perf_counter() - t0
+    save_samples(args.output, buf)
+    info = buf.inspect()
+    print(f"{args.name}: {w}x{h}, {args.spp} spp, {w * h * args.spp / dt / 1e6:.1f} M samples/s "
+          f"({dt * 1e3:.0f} ms); max |CoC| {info.max_abs_coc:.1f} px, max |motion| "
+          f"{info.max_abs_motion:.1f} px -> {args.output}")
+    return 0
+
+
+def cmd_reference(args) -> int:
+    from .io import save_image
+    from .scenes import get_scene, render_reference
+
+    scene = get_scene(args.name)
+    w, h = args.size or scene.default_size
+    t0 = time.perf_counter()
+    img = _with_bar(f"reference {args.name}", render_reference, scene, w, h, args.spp,
+                    seed=args.seed, device=args.device)
+    dt = time.perf_counter() - t0
+    save_image(args.output, img)
+    print(f"{args.name}: reference {w}x{h} at {args.spp} spp in {dt:.1f} s -> {args.output}")
+    return 0
+
+
+def _quality(image, reference_path) -> dict:
+    from .io import load_image
+    from .metrics import evaluate
+
+    ref = load_image(reference_path)
+    if ref.shape != image.shape:
+        raise ValueError(f"reference: shape {ref.shape} does not match the image {image.shape}")
+    return evaluate(image, ref)
+
+
+def cmd_reconstruct(args) -> int:
+    from .io import load_samples, save_image
+    from .pipeline import run
+
+    knobs = dict(kv.split("=", 1) for kv in args.knob or [])
+    knobs = {k: _parse_value(v) for k, v in knobs.items()}
+    buf = load_samples(args.input)
+    res = run(buf, args.method, args.device, **knobs)
+    save_image(args.output, res.image)
+    out = {"input": str(args.input), "output": str(args.output), "device": res.device,
+           "size": [buf.width, buf.height], "spp": buf.spp, **res.method,
+           "pass_ms": res.pass_ms, "device_ms": res.device_ms, "upload_ms": res.upload_ms,
+           "total_ms": res.total_ms}
+    if args.reference:
+        out["quality"] = _quality(res.image, args.reference)
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    passes = ", ".join(f"{k} {v:.2f} ms" for k, v in res.pass_ms.items())
+    print(f"{args.method} on {res.device}: {passes} (device {res.device_ms:.2f} ms, "
+          f"total with upload and readback {res.total_ms:.1f} ms) -> {args.output}")
+    if "quality" in out:
+        q = out["quality"]
+        print(f"quality vs {args.reference}: PSNR {q['psnr']:.2f} dB, SSIM {q['ssim']:.4f}, "
+              f"FLIP {q['flip']:.4f}")
+    return 0
+
+
+def _parse_value(v: str):
+    for cast in (int, float):
+        try:
+            return cast(v)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(v.lower(), v)
+
+
+def cmd_compare(args) -> int:
+    from .io import load_image
+
+    q = _quality(load_image(args.a), args.b)
+    if args.json:
+        print(json.dumps(q))
+    else:
+        print(f"{args.a} vs {args.b}: PSNR {q['psnr']:.2f} dB, SSIM {q['ssim']:.4f}, "
+              f"FLIP {q['flip']:.4f}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from .io import save_image
+    from .metrics import evaluate
+    from .pipeline import run
+    from .scenes import get_scene, render_reference, render_samples
+
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = get_scene(args.scene)
+    w, h = args.size or scene.default_size
+    t0 = time.perf_counter()
+    buf = _with_bar("samples", render_samples, scene, w, h, args.spp, seed=args.seed,
+                    device=args.device)
+    t_render = time.perf_counter() - t0
+    ref = _with_bar("reference", render_reference, scene, w, h, args.ref_spp, seed=args.seed + 1,
+                    device=args.device)
+    t_ref = time.perf_counter() - t0 - t_render
+    run(buf, args.method, args.device)  # warm-up: program build and first-launch costs
+    res = run(buf, args.method, args.device)
+    q = evaluate(res.image, ref)
+    save_image(out / f"{args.scene}_reference.exr", ref)
+    save_image(out / f"{args.scene}_reference.png", ref)
+    save_image(out / f"{args.scene}_{args.method}.exr", res.image)
+    save_image(out / f"{args.scene}_{args.method}.png", res.image)
+    print(f"scene {args.scene} {w}x{h}: {args.spp} spp rendered in {t_render * 1e3:.0f} ms "
+          f"({w * h * args.spp / t_render / 1e6:.1f} M samples/s); reference {args.ref_spp} spp "
+          f"in {t_ref:.1f} s")
+    print(f"{args.method} on {res.device}: device {res.device_ms:.2f} ms, "
+          f"total {res.total_ms:.1f} ms")
+    print(f"quality vs reference: PSNR {q['psnr']:.2f} dB, SSIM {q['ssim']:.4f}, "
+          f"FLIP {q['flip']:.4f}")
+    print(f"images in {out}/")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from .bench.foundation import foundation_report
+
+    bar = _Bar("report", unit="step")
+    try:
+        rep = foundation_report(args.scenes, size=args.size or (512, 512), spps=args.spp,
+                                ref_spp=args.ref_spp, device=args.device, out_dir=args.output,
+                                progress=bar)
+    finally:
+        bar.close()
+    print(rep["markdown"])
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="clrecon", description=__doc__.splitlines()[0])
+    p.add_argument("-v", "--verbose", action="store_true", help="log what the library decides")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    def dev(sp):
+        sp.add_argument("--device", default=None,
+                        help="OpenCL device index or name substring (env CLRECON_DEVICE)")
+
+    sp = sub.add_parser("devices", help="list OpenCL devices")
+    sp.add_argument("--json", action="store_true")
+    sp.set_defaults(fn=cmd_devices)
+
+    sp = sub.add_parser("scene", help="render a built-in scene's sample buffer")
+    sp.add_argument("name")
+    sp.add_argument("--size", type=_size, default=None, help="WxH (default: the scene's, 512x512)")
+    sp.add_argument("--spp", type=int, default=8)
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("-o", "--output", required=True, help=".bin/.txt (TLFR), .exr or .npz")
+    dev(sp)
+    sp.set_defaults(fn=cmd_scene)
+
+    sp = sub.add_parser("reference", help="render a converged reference image")
+    sp.add_argument("name")
+    sp.add_argument("--size", type=_size, default=None)
+    sp.add_argument("--spp", type=int, default=1024)
+    sp.add_argument("--seed", type=int, default=1)
+    sp.add_argument("-o", "--output", required=True, help=".exr (or .png)")
+    dev(sp)
+    sp.set_defaults(fn=cmd_reference)
+
+    sp = sub.add_parser("reconstruct", help="reconstruct an image from a sample buffer")
+    sp.add_argument("input")
+    sp.add_argument("-o", "--output", required=True, help=".exr or .png")
+    sp.add_argument("--method", default="box")
+    sp.add_argument("--reference", help="converged reference .exr: print PSNR/SSIM/FLIP")
+    sp.add_argument("--knob", action="append", metavar="NAME=VALUE",
+                    help="method knob (repeatable)")
+    sp.add_argument("--json", action="store_true", help="print one JSON object")
+    dev(sp)
+    sp.set_defaults(fn=cmd_reconstruct)
+
+    sp = sub.add_parser("compare", help="quality of image A against reference B")
+    sp.add_argument("a")
+    sp.add_argument("b")
+    sp.add_argument("--json", action="store_true")
+    sp.set_defaults(fn=cmd_compare)
+
+    sp = sub.add_parser("demo", help="render a scene, reconstruct it, print time and quality")
+    sp.add_argument("--scene", default="fence")
+    sp.add_argument("--size", type=_size, default=None)
+    sp.add_argument("--spp", type=int, default=8)
+    sp.add_argument("--ref-spp", type=int, default=1024)
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--method", default="box")
+    sp.add_argument("-o", "--output", default="out")
+    dev(sp)
+    sp.set_defaults(fn=cmd_demo)
+
+    sp = sub.add_parser("report", help="generator throughput, reference convergence, box quality")
+    sp.add_argument("--scenes", nargs="*", default=None)
+    sp.add_argument("--size", type=_size, default=None)
+    sp.add_argument("--spp", type=_int_list, default=[4, 8, 16])
+    sp.add_argument("--ref-spp", type=int, default=1024)
+    sp.add_argument("-o", "--output", default="out/report")
+    dev(sp)
+    sp.set_defaults(fn=cmd_report)
+    return p
+
+
+def main(argv=None) -> int:
+    from .errors import ClreconError
+
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="clrecon: %(message)s")
+    try:
+        return args.fn(args)
+    except (ValueError, TypeError, FileNotFoundError, ClreconError) as exc:
+        print(f"clrecon {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

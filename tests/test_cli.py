@@ -1,0 +1,59 @@
+"""The command line end to end, in-process (``clrecon.cli.main``)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from clrecon.cli import main
+from clrecon.io import load_image, load_samples
+
+
+def test_devices_lists_every_device(capsys):
+    assert main(["devices"]) == 0
+    out = capsys.readouterr().out
+    assert "[0]" in out and "compute units" in out and "atomics" in out
+    assert main(["devices", "--json"]) == 0
+    devs = json.loads(capsys.readouterr().out)
+    assert devs[0]["index"] == 0 and "atomics" in devs[0]
+
+
+def test_scene_reference_reconstruct_json(tmp_path, capsys):
+    f, ref, out = tmp_path / "f.bin", tmp_path / "ref.exr", tmp_path / "f.exr"
+    assert main(["scene", "fence", "--size", "64x48", "--spp", "4", "-o", str(f)]) == 0
+    assert (tmp_path / "f.bin.header").is_file()
+    assert load_samples(f).shape == (48, 64, 4)
+    assert main(["reference", "fence", "--size", "64x48", "--spp", "64", "-o", str(ref)]) == 0
+    capsys.readouterr()
+    assert main(["reconstruct", str(f), "--method", "box", "-o", str(out), "--reference",
+                 str(ref), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["method"] == "box" and rep["spp"] == 4 and rep["size"] == [64, 48]
+    assert rep["pass_ms"]["box"] >= 0
+    q = rep["quality"]
+    assert 15 < q["psnr"] < 60 and 0 < q["ssim"] <= 1 and 0 <= q["flip"] < 1
+    img = load_image(out)
+    assert img.shape == (48, 64, 3) and np.isfinite(img).all()
+    assert main(["compare", str(out), str(ref), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["psnr"] == pytest.approx(q["psnr"])
+
+
+def test_errors_exit_2_with_a_message(tmp_path, capsys):
+    assert main(["scene", "nope", "-o", str(tmp_path / "x.npz")]) == 2
+    assert "unknown 'nope'" in capsys.readouterr().err
+    assert main(["reconstruct", str(tmp_path / "missing.bin"), "-o", str(tmp_path / "o.exr")]) == 2
+    assert main(["scene", "empty", "--size", "8x8", "-o", str(tmp_path / "e.npz")]) == 0
+    capsys.readouterr()
+    assert main(["reconstruct", str(tmp_path / "e.npz"), "-o", str(tmp_path / "o.exr"),
+                 "--method", "bogus"]) == 2
+    assert "unknown 'bogus'" in capsys.readouterr().err
+
+
+def test_demo_writes_images(tmp_path, capsys):
+    assert main(["demo", "--scene", "spheres", "--size", "48x32", "--ref-spp", "64", "-o",
+                 str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "PSNR" in out and "M samples/s" in out
+    for name in ("spheres_reference.png", "spheres_box.png", "spheres_box.exr"):
+        assert (tmp_path / name).is_file()
