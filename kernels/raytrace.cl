@@ -25,6 +25,9 @@
  * Shading: Lambert, one directional light plus ambient, two-sided; deterministic per hit
  * point so that the only noise in a sample buffer is pixel/lens/time sampling.
  *
+ * bounds: float4 per object (xmin, ymin, xmax, ymax) in pixels, from
+ *   clrecon/scenes/primitives.py Scene.screen_bounds; infinite for planes and for objects
+ *   reaching the lens plane.
  * Kernels:
  *   raytrace_samples: one work-item per pixel of rows [row0, row0 + global size y); SoA outputs
  *     color (npix*S*3), position (npix*S*2), depth (npix*S), lens (npix*S*2), time (npix*S),
@@ -64,12 +67,17 @@ inline float2 concentric_disk(float a, float b)
     float r, phi;
     if (fabs(sx) > fabs(sy)) { r = sx; phi = (M_PI_F / 4.0f) * (sy / sx); }
     else { r = sy; phi = (M_PI_F / 2.0f) - (M_PI_F / 4.0f) * (sx / sy); }
-    return r * (float2)(cos(phi), sin(phi));
+    /* native trig: the lens point is recorded as generated, so its exact value is free to
+     * differ by an ulp; the clamp keeps it inside the disk whatever the rounding */
+    const float2 p = r * (float2)(native_cos(phi), native_sin(phi));
+    const float len2 = dot(p, p);
+    return len2 > 1.0f ? p * rsqrt(len2) * 0.99999994f : p;
 }
 
 /* Nearest hit of ray o + s d (d normalised) against one object at time t.
- * Returns s (INFINITY for a miss); sets the normal and the texture coordinates. */
-inline float intersect(__global const float *ob, float3 o, float3 d, float t,
+ * Returns s (INFINITY for a miss); with full != 0 also sets the normal and texture
+ * coordinates (only done again for the winning object: call sites pass a constant). */
+inline float intersect(__global const float *ob, float3 o, float3 d, float t, const int full,
                        float3 *n, float3 *uvw)
 {
     const int type = (int)ob[0];
@@ -92,6 +100,7 @@ inline float intersect(__global const float *ob, float3 o, float3 d, float t,
         float s = -b - q;
         if (s <= T_EPS) s = -b + q;
         if (s <= T_EPS) return INFINITY;
+        if (!full) return s;
         const float3 p = oc + s * d;
         *n = p / r;
         *uvw = (float3)(dot(p, e0), dot(p, e1), dot(p, e2));
@@ -105,6 +114,7 @@ inline float intersect(__global const float *ob, float3 o, float3 d, float t,
         const float3 p = oc + s * d;
         const float a = dot(p, e0), bb = dot(p, e1);
         if (type == 1 && (fabs(a) > h0 || fabs(bb) > h1)) return INFINITY;
+        if (!full) return s;
         *n = e2;
         *uvw = (float3)(a, bb, 0.0f);
         return s;
@@ -120,6 +130,7 @@ inline float intersect(__global const float *ob, float3 o, float3 d, float t,
     const float sfar = fmin(fmin(tf.x, tf.y), tf.z);
     if (!(snear <= sfar) || sfar <= T_EPS) return INFINITY;
     const float s = snear > T_EPS ? snear : sfar;
+    if (!full) return s;
     const float3 p = lo + s * ld;
     /* the face hit is the axis whose slab bound was reached */
     const float3 rel = fabs(p) / h;
@@ -161,7 +172,29 @@ inline void pixel_shifts(int px, int py, uint seed, uint shift[5])
         shift[k] = hash_u32(shift[k - 1] + 0x632BE5ABU);
 }
 
-inline sample_t trace(__global const float *objs, int nobj, int px, int py, uint i,
+#ifndef MAX_CANDIDATES
+#define MAX_CANDIDATES 64  // objects kept per pixel after screen-space culling
+#endif
+
+/* Objects whose screen bounds (pinhole footprint over the shutter, grown by the largest
+ * |CoC| over their depth range: a conservative superset of where any sample can see them)
+ * touch pixel (px, py). Returns the count; -1 when more than MAX_CANDIDATES (test all). */
+inline int pixel_candidates(__global const float4 *bounds, int nobj, int px, int py,
+                            uchar cand[MAX_CANDIDATES])
+{
+    int n = 0;
+    for (int k = 0; k < nobj; ++k) {
+        const float4 b = bounds[k];
+        if (b.x <= px + 1 && b.z >= px && b.y <= py + 1 && b.w >= py) {
+            if (n == MAX_CANDIDATES || k > 255) return -1;
+            cand[n++] = (uchar)k;
+        }
+    }
+    return n;
+}
+
+inline sample_t trace(__global const float *objs, int nobj, const uchar *cand, int ncand,
+                      int px, int py, uint i,
                       const uint shift[5], float cx, float cy, float focal, float focus,
                       float lens_radius, float3 light, float ambient, float3 background)
 {
@@ -178,11 +211,14 @@ inline sample_t trace(__global const float *objs, int nobj, int px, int py, uint
     float best = INFINITY;
     int hit = -1;
     float3 n = (float3)(0.0f), uvw = (float3)(0.0f);
-    for (int k = 0; k < nobj; ++k) {
-        float3 nk, uk;
-        const float sk = intersect(objs + k * OBJ_STRIDE, o, d, s.time, &nk, &uk);
-        if (sk < best) { best = sk; hit = k; n = nk; uvw = uk; }
+    const int count = ncand < 0 ? nobj : ncand;
+    for (int j = 0; j < count; ++j) {
+        const int k = ncand < 0 ? j : cand[j];
+        const float sk = intersect(objs + k * OBJ_STRIDE, o, d, s.time, 0, &n, &uvw);
+        if (sk < best) { best = sk; hit = k; }
     }
+    if (hit >= 0)
+        intersect(objs + hit * OBJ_STRIDE, o, d, s.time, 1, &n, &uvw);
     if (hit < 0) {
         s.color = background;
         s.depth = INFINITY;
@@ -196,7 +232,8 @@ inline sample_t trace(__global const float *objs, int nobj, int px, int py, uint
     return s;
 }
 
-__kernel void raytrace_samples(__global const float *objs, const int nobj,
+__kernel void raytrace_samples(__global const float *objs, __global const float4 *bounds,
+                               const int nobj,
                                const int width, const int height, const int spp,
                                const int row0, const uint seed, const float cx, const float cy,
                                const float focal, const float focus, const float lens_radius,
@@ -210,9 +247,12 @@ __kernel void raytrace_samples(__global const float *objs, const int nobj,
         return;
     uint shift[5];
     pixel_shifts(px, py, seed, shift);
+    uchar cand[MAX_CANDIDATES];
+    const int ncand = pixel_candidates(bounds, nobj, px, py, cand);
     const size_t base = (size_t)pixel_index(px, py, width) * spp;
     for (int i = 0; i < spp; ++i) {
-        const sample_t s = trace(objs, nobj, px, py, (uint)i, shift, cx, cy, focal, focus,
+        const sample_t s = trace(objs, nobj, cand, ncand, px, py, (uint)i, shift, cx, cy,
+                                 focal, focus,
                                  lens_radius, light.xyz, light.w, background.xyz);
         const size_t k = base + i;
         vstore3(s.color, k, color);
@@ -224,7 +264,8 @@ __kernel void raytrace_samples(__global const float *objs, const int nobj,
     }
 }
 
-__kernel void raytrace_reference(__global const float *objs, const int nobj,
+__kernel void raytrace_reference(__global const float *objs, __global const float4 *bounds,
+                                 const int nobj,
                                  const int width, const int height, const uint first,
                                  const uint count, const uint seed, const float cx,
                                  const float cy, const float focal, const float focus,
@@ -236,9 +277,11 @@ __kernel void raytrace_reference(__global const float *objs, const int nobj,
         return;
     uint shift[5];
     pixel_shifts(px, py, seed, shift);
+    uchar cand[MAX_CANDIDATES];
+    const int ncand = pixel_candidates(bounds, nobj, px, py, cand);
     float3 sum = (float3)(0.0f);
     for (uint i = first; i < first + count; ++i) {
-        const sample_t s = trace(objs, nobj, px, py, i, shift, cx, cy, focal, focus,
+        const sample_t s = trace(objs, nobj, cand, ncand, px, py, i, shift, cx, cy, focal, focus,
                                  lens_radius, light.xyz, light.w, background.xyz);
         sum += s.color;
     }

@@ -7,7 +7,7 @@ fence      defocused fence (CoC ~ -9 px) before a diagonally moving checkerboard
 spheres    three flat-shaded spheres with strong defocus (CoC -14 .. +9 px; Shirley Fig. 2)
 bokeh      small HDR highlights (radiance 20-200) out of focus, some moving, over a dim wall
 deep       ~40 objects from depth 1.5 to 60 with varied motion (the stress scene)
-huge_coc   a near object with CoC radius ~ -70 px, far wall +15 px
+huge_coc   a near object with CoC radius ~ -75 px, far wall +9 px
 fast_motion  a checkered bar moving ~280 px over the shutter before a static wall
 static_focus  pinhole camera, nothing moves: box filtering is already right
 empty      background only
@@ -28,7 +28,8 @@ WOOD = Material((0.55, 0.35, 0.18))
 def fence() -> Scene:
     slats = [Box((x, 0.0, 2.5), (0.04, 1.6, 0.03), WOOD) for x in np.arange(-1.4, 1.45, 0.35)]
     rails = [Box((0.0, y, 2.45), (1.6, 0.03, 0.02), WOOD) for y in (-0.55, 0.6)]
-    mover = Quad((0.2, 0.0, 6.0), (1.3, 1.3), CHECK_R, velocity=(0.35, 0.25, 0.0))
+    mover = Quad((0.2, 0.0, 6.0), (1.3, 1.3), Material((0.9, 0.3, 0.2), (0.95, 0.9, 0.8), "checker",
+                 0.45), velocity=(0.35, 0.25, 0.0))
     wall = Plane((0.0, 0.0, 11.0), Material((0.8, 0.8, 0.75), (0.15, 0.2, 0.3), "checker", 0.9),
                  rotate=(10.0, 35.0, 0.0))
     return Scene("fence", tuple(slats + rails + [mover, wall]), focus_depth=6.0,
@@ -88,8 +89,8 @@ def huge_coc() -> Scene:
     objs = (Box((-0.3, 0.0, 1.2), (0.12, 0.4, 0.05), CHECK_R, rotate=(0.0, 0.0, 20.0)),
             Sphere((0.0, 0.0, 8.0), 1.2, STRIPE),
             Plane((0.0, 0.0, 30.0), CHECK_W))
-    return Scene("huge_coc", objs, focus_depth=8.0, lens_radius=0.03 * 8.0 / 0.6,
-                 description="near CoC ~ -70 px")
+    return Scene("huge_coc", objs, focus_depth=8.0, lens_radius=0.19,
+                 description="near CoC ~ -75 px")
 
 
 def fast_motion() -> Scene:

@@ -169,8 +169,52 @@ class Scene:
             r[28:31] = m.color2
         return out
 
+    def screen_bounds(self, width: int, height: int) -> np.ndarray:
+        """Per object (xmin, ymin, xmax, ymax) in pixels: a superset of where any sample of
+        the frame can see it. A sample at sensor s sees P only if |s - pinhole(P)| <=
+        |coc(P.z)| per axis; the pinhole image of a convex set in front of the lens lies in
+        the hull of its corners' images, so the corners of the object's bounding box at both
+        ends of its travel, projected and grown by the largest |CoC| over their depth range
+        (CoC is monotonic in depth), bound it. Planes and objects reaching the lens plane get
+        infinite bounds.
+        """
+        cam = self.camera(width, height)
+        coc = cam.coc_model
+        cx, cy = cam.centre
+        f = cam.focal_px
+        records = self.pack().astype(np.float64)
+        out = np.tile(np.array([-np.inf, -np.inf, np.inf, np.inf], np.float32),
+                      (max(len(self.objects), 1), 1))
+        for k, ob in enumerate(self.objects):
+            pts = _hull_points(ob, records[k])
+            if pts is None:
+                continue
+            z0, z1 = pts[:, 2].min(), pts[:, 2].max()
+            if z0 <= 1e-3:
+                continue
+            grow = max(abs(float(coc.coc(z0))), abs(float(coc.coc(z1)))) + 1.0
+            xs = cx + f * pts[:, 0] / pts[:, 2]
+            ys = cy + f * pts[:, 1] / pts[:, 2]
+            out[k] = (xs.min() - grow, ys.min() - grow, xs.max() + grow, ys.max() + grow)
+        return out
+
     def light(self) -> np.ndarray:
         """float4 (direction to the light, normalised; ambient) for the kernel."""
         d = np.asarray(self.light_dir, np.float64)
         d = d / np.linalg.norm(d)
         return np.array([*d, self.ambient], np.float32)
+
+
+def _hull_points(ob, rec: np.ndarray) -> np.ndarray | None:
+    """Camera-space corners of a box containing the object over the whole shutter."""
+    if isinstance(ob, Plane):
+        return None
+    c, v = rec[4:7], rec[8:11]
+    if isinstance(ob, Sphere):
+        axes, half = np.eye(3), np.full(3, ob.radius)
+    else:
+        axes = np.stack([rec[12:15], rec[16:19], rec[20:23]])
+        half = np.array([rec[15], rec[19], rec[23]])
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    corners = c + (signs * half) @ axes
+    return np.concatenate([corners - 0.5 * v, corners + 0.5 * v])

@@ -29,13 +29,14 @@ def _check_size(width: int, height: int, spp: int) -> None:
 
 def _common_args(scene: Scene, width: int, height: int, ctx: cl.Context):
     cam = scene.camera(width, height)
-    objs = scene.pack()
-    dobjs = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=objs)
+    ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+    dobjs = cl.Buffer(ctx, ro, hostbuf=scene.pack())
+    dbounds = cl.Buffer(ctx, ro, hostbuf=scene.screen_bounds(width, height))
     cx, cy = cam.centre
     bg = np.array([*scene.background, 0.0], np.float32)
     camera = [np.float32(cx), np.float32(cy), np.float32(cam.focal_px),
               np.float32(cam.focus_depth), np.float32(cam.lens_radius)]
-    return cam, dobjs, np.int32(len(scene.objects)), camera, scene.light(), bg
+    return cam, (dobjs, dbounds, np.int32(len(scene.objects))), camera, scene.light(), bg
 
 
 def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 0,
@@ -44,31 +45,37 @@ def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 
     _check_size(width, height, spp)
     dev = _get_device(device)
     ctx, q = dev.context, dev.queue
-    cam, dobjs, nobj, camera, light, bg = _common_args(scene, width, height, ctx)
+    cam, objs, camera, light, bg = _common_args(scene, width, height, ctx)
     n = width * height * spp
-    buf = SampleBuffer.zeros(0, 0, 0, cam.coc_model)  # shapes set below
-    arrays = {"color": (n, 3), "position": (n, 2), "depth": (n,), "lens": (n, 2), "time": (n,),
-              "motion": (n, 2)}
-    dbufs = {k: cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * int(np.prod(s)))
-             for k, s in arrays.items()}
+    hws = (height, width, spp)
+    host = {"color": np.empty(hws + (3,), np.float32), "position": np.empty(hws + (2,), np.float32),
+            "depth": np.empty(hws, np.float32), "lens": np.empty(hws + (2,), np.float32),
+            "time": np.empty(hws, np.float32), "motion": np.empty(hws + (2,), np.float32)}
+    # CPU devices write straight into the host arrays (no second copy of ~44 bytes/sample)
+    zero_copy = bool(dev.device.type & cl.device_type.CPU)
+    flags = cl.mem_flags.WRITE_ONLY | (cl.mem_flags.USE_HOST_PTR if zero_copy else 0)
+    dbufs = {k: cl.Buffer(ctx, flags, hostbuf=a) if zero_copy else cl.Buffer(ctx, flags, a.nbytes)
+             for k, a in host.items()}
     kernel = get_kernel(ctx, "raytrace", "raytrace_samples")
     rows = max(1, CHUNK_SAMPLES // (width * spp))
     gx = -(-width // 8) * 8
     for row0 in range(0, height, rows):
         count = min(rows, height - row0)
-        kernel.set_args(dobjs, nobj, np.int32(width), np.int32(height), np.int32(spp),
+        kernel.set_args(*objs, np.int32(width), np.int32(height), np.int32(spp),
                         np.int32(row0), np.uint32(seed & 0xFFFFFFFF), *camera, light, bg,
-                        *(dbufs[k] for k in arrays))
+                        *(dbufs[k] for k in host))
         cl.enqueue_nd_range_kernel(q, kernel, (gx, -(-count // 8) * 8), (8, 8))
         if progress is not None:
             q.finish()
             progress((row0 + count) * width * spp, n)
-    for k, shape in arrays.items():
-        host = np.empty(shape, np.float32)
-        cl.enqueue_copy(q, host, dbufs[k])
-        setattr(buf, k, host.reshape((height, width, spp) + shape[1:]))
+    for k, a in host.items():
+        if zero_copy:  # mapping makes the device's writes visible in the host array
+            mapped, _ = cl.enqueue_map_buffer(q, dbufs[k], cl.map_flags.READ, 0, a.shape, a.dtype)
+            mapped.base.release(q)
+        else:
+            cl.enqueue_copy(q, a, dbufs[k])
     q.finish()
-    return buf
+    return SampleBuffer(**host, coc_model=cam.coc_model)
 
 
 def render_reference(scene: Scene, width: int, height: int, spp: int = 1024, seed: int = 1,
@@ -78,7 +85,7 @@ def render_reference(scene: Scene, width: int, height: int, spp: int = 1024, see
     _check_size(width, height, spp)
     dev = _get_device(device)
     ctx, q = dev.context, dev.queue
-    cam, dobjs, nobj, camera, light, bg = _common_args(scene, width, height, ctx)
+    cam, objs, camera, light, bg = _common_args(scene, width, height, ctx)
     kernel = get_kernel(ctx, "raytrace", "raytrace_reference")
     dout = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=width * height * 12)
     acc = np.zeros((height, width, 3), np.float64)
@@ -86,7 +93,7 @@ def render_reference(scene: Scene, width: int, height: int, spp: int = 1024, see
     gsize = (-(-width // 8) * 8, -(-height // 8) * 8)
     for first in range(0, spp, REFERENCE_CHUNK):
         count = min(REFERENCE_CHUNK, spp - first)
-        kernel.set_args(dobjs, nobj, np.int32(width), np.int32(height), np.uint32(first),
+        kernel.set_args(*objs, np.int32(width), np.int32(height), np.uint32(first),
                         np.uint32(count), np.uint32(seed & 0xFFFFFFFF), *camera, light, bg, dout)
         cl.enqueue_nd_range_kernel(q, kernel, gsize, (8, 8))
         cl.enqueue_copy(q, part, dout)
