@@ -107,7 +107,8 @@ def cmd_reference(args) -> int:
                     seed=args.seed, device=args.device)
     dt = time.perf_counter() - t0
     save_image(args.output, img)
-    print(f"{args.name}: reference {w}x{h} at {args.spp} spp in {dt:.1f} s -> {args.output}")
+    spp = args.spp or scene.reference_spp
+    print(f"{args.name}: reference {w}x{h} at {spp} spp in {dt:.1f} s -> {args.output}")
     return 0
 
 
@@ -195,8 +196,9 @@ def cmd_demo(args) -> int:
     save_image(out / f"{args.scene}_reference.png", ref)
     save_image(out / f"{args.scene}_{args.method}.exr", res.image)
     save_image(out / f"{args.scene}_{args.method}.png", res.image)
+    ref_spp = args.ref_spp or scene.reference_spp
     print(f"scene {args.scene} {w}x{h}: {args.spp} spp rendered in {t_render * 1e3:.0f} ms "
-          f"({w * h * args.spp / t_render / 1e6:.1f} M samples/s); reference {args.ref_spp} spp "
+          f"({w * h * args.spp / t_render / 1e6:.1f} M samples/s); reference {ref_spp} spp "
           f"in {t_ref:.1f} s")
     print(f"{args.method} on {res.device}: device {res.device_ms:.2f} ms, "
           f"total {res.total_ms:.1f} ms")
@@ -245,7 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("reference", help="render a converged reference image")
     sp.add_argument("name")
     sp.add_argument("--size", type=_size, default=None)
-    sp.add_argument("--spp", type=int, default=1024)
+    sp.add_argument("--spp", type=int, default=None, help="default: the scene's (1024; bokeh 4096)")
     sp.add_argument("--seed", type=int, default=1)
     sp.add_argument("-o", "--output", required=True, help=".exr (or .png)")
     dev(sp)
@@ -272,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--scene", default="fence")
     sp.add_argument("--size", type=_size, default=None)
     sp.add_argument("--spp", type=int, default=8)
-    sp.add_argument("--ref-spp", type=int, default=1024)
+    sp.add_argument("--ref-spp", type=int, default=None, help="default: the scene's")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--method", default="box")
     sp.add_argument("-o", "--output", default="out")
@@ -283,7 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--scenes", nargs="*", default=None)
     sp.add_argument("--size", type=_size, default=None)
     sp.add_argument("--spp", type=_int_list, default=[4, 8, 16])
-    sp.add_argument("--ref-spp", type=int, default=1024)
+    sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
     sp.add_argument("-o", "--output", default="out/report")
     dev(sp)
     sp.set_defaults(fn=cmd_report)

@@ -21,7 +21,8 @@
  *   4-6 centre at t = 0.5, 7 sphere radius, 8-10 velocity per shutter, 11 bounding
  *   radius (INFINITY for planes), 12-14 axis e0,
  *   15 half extent h0, 16-18 e1, 19 h1, 20-22 e2 (quad/plane normal), 23 h2,
- *   24-26 colour a, 28-30 colour b.
+ *   24-26 colour a, 27 least depth the object reaches (0 for planes; records are sorted
+ *   by it), 28-30 colour b.
  * Shading: Lambert, one directional light plus ambient, two-sided; deterministic per hit
  * point so that the only noise in a sample buffer is pixel/lens/time sampling.
  *
@@ -214,7 +215,12 @@ inline sample_t trace(__global const float *objs, int nobj, const uchar *cand, i
     const int count = ncand < 0 ? nobj : ncand;
     for (int j = 0; j < count; ++j) {
         const int k = ncand < 0 ? j : cand[j];
-        const float sk = intersect(objs + k * OBJ_STRIDE, o, d, s.time, 0, &n, &uvw);
+        __global const float *ob = objs + k * OBJ_STRIDE;
+        /* objects come nearest-first (slot 27: the least depth any part of them reaches):
+         * once the best hit is in front of the next object, no later one can beat it */
+        if (best * d.z < ob[27])
+            break;
+        const float sk = intersect(ob, o, d, s.time, 0, &n, &uvw);
         if (sk < best) { best = sk; hit = k; }
     }
     if (hit >= 0)

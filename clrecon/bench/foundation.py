@@ -29,7 +29,7 @@ def _median_time(fn, repeats: int) -> float:
     return statistics.median(times)
 
 
-def foundation_report(scenes=None, size=(512, 512), spps=(4, 8, 16), ref_spp=1024,
+def foundation_report(scenes=None, size=(512, 512), spps=(4, 8, 16), ref_spp=None,
                       device=None, out_dir="out/report", repeats=3, progress=None) -> dict:
     """Measure and write ``report.md``, ``report.json`` and per-scene PNGs into ``out_dir``."""
     scenes = list(scenes or SCENES)
@@ -52,14 +52,15 @@ def foundation_report(scenes=None, size=(512, 512), spps=(4, 8, 16), ref_spp=102
                          repeats)
         step()
         t0 = time.perf_counter()
-        ref_a = render_reference(scene, w, h, ref_spp, seed=1, device=dev)
+        rspp = ref_spp or scene.reference_spp
+        ref_a = render_reference(scene, w, h, rspp, seed=1, device=dev)
         t_ref = time.perf_counter() - t0
         step()
-        ref_b = render_reference(scene, w, h, ref_spp, seed=2, device=dev)
+        ref_b = render_reference(scene, w, h, rspp, seed=2, device=dev)
         step()
         save_image(out / f"{name}_reference.png", ref_a)
-        row = {"scene": name, "msamples_per_s": w * h * 16 / t / 1e6, "reference_s": t_ref,
-               "reference_psnr_between_seeds": psnr(ref_b, ref_a), "box": {}}
+        row = {"scene": name, "reference_spp": rspp, "msamples_per_s": w * h * 16 / t / 1e6,
+               "reference_s": t_ref, "reference_psnr_between_seeds": psnr(ref_b, ref_a), "box": {}}
         for spp in spps:
             buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev)
             res = run(buf, "box", dev)
@@ -67,7 +68,7 @@ def foundation_report(scenes=None, size=(512, 512), spps=(4, 8, 16), ref_spp=102
             save_image(out / f"{name}_box{spp}.png", res.image)
             step()
         rows.append(row)
-    report = {"device": dev.info.label, "size": [w, h], "reference_spp": ref_spp,
+    report = {"device": dev.info.label, "size": [w, h],
               "spps": list(spps), "rows": rows}
     report["markdown"] = _markdown(report)
     (out / "report.json").write_text(json.dumps({k: v for k, v in report.items()
@@ -79,13 +80,15 @@ def foundation_report(scenes=None, size=(512, 512), spps=(4, 8, 16), ref_spp=102
 def _markdown(rep: dict) -> str:
     w, h = rep["size"]
     spps = rep["spps"]
-    lines = [f"Device: {rep['device']}; {w}x{h}; references {rep['reference_spp']} spp.", "",
-             "| scene | generator M samples/s (16 spp) | reference s | ref A vs B PSNR dB | "
+    lines = [f"Device: {rep['device']}; {w}x{h}.", "",
+             "| scene | generator M samples/s (16 spp) | reference spp | reference s | "
+             "ref A vs B PSNR dB | "
              + " | ".join(f"box {s} spp PSNR / SSIM / FLIP" for s in spps) + " |",
-             "|---|---|---|---|" + "---|" * len(spps)]
+             "|---|---|---|---|---|" + "---|" * len(spps)]
     for r in rep["rows"]:
         cells = [f"{r['box'][s]['psnr']:.2f} / {r['box'][s]['ssim']:.4f} / "
                  f"{r['box'][s]['flip']:.4f}" for s in spps]
-        lines.append(f"| {r['scene']} | {r['msamples_per_s']:.1f} | {r['reference_s']:.1f} | "
+        lines.append(f"| {r['scene']} | {r['msamples_per_s']:.1f} | {r['reference_spp']} | "
+                     f"{r['reference_s']:.1f} | "
                      f"{r['reference_psnr_between_seeds']:.2f} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -115,6 +115,8 @@ class Scene:
     background: Vec3 = (0.05, 0.06, 0.08)
     default_size: tuple[int, int] = (512, 512)
     description: str = ""
+    #: samples per pixel a converged reference needs (two seeds agree to >= 45 dB PSNR)
+    reference_spp: int = 1024
 
     def __post_init__(self):
         for k, ob in enumerate(self.objects):
@@ -137,37 +139,13 @@ class Scene:
         return any(any(v != 0 for v in ob.velocity) for ob in self.objects)
 
     def pack(self) -> np.ndarray:
-        """Object records for ``kernels/raytrace.cl`` (float32, (n, OBJ_STRIDE))."""
-        out = np.zeros((max(len(self.objects), 1), OBJ_STRIDE), np.float32)
-        for k, ob in enumerate(self.objects):
-            r = out[k]
-            m = ob.material
-            r[0] = _TYPE[type(ob)]
-            r[1] = TEXTURES[m.texture]
-            r[2] = m.emission
-            r[3] = m.period
-            r[4:7] = ob.centre
-            r[8:11] = ob.velocity
-            axes = rotation(*getattr(ob, "rotate", (0.0, 0.0, 0.0)))
-            half = {Sphere: (0, 0, 0), Plane: (0, 0, 0)}.get(type(ob))
-            if half is None:
-                half = tuple(ob.half) + (0.0,) * (3 - len(ob.half))
-            if isinstance(ob, Sphere):
-                r[7] = ob.radius
-            # bounding sphere over the whole shutter (slot 11): the kernel's cheap reject
-            if isinstance(ob, Sphere):
-                reach = ob.radius
-            elif isinstance(ob, Plane):
-                reach = math.inf
-            else:
-                reach = math.hypot(*half)
-            r[11] = reach + 0.5 * math.hypot(*ob.velocity)
-            for j in range(3):
-                r[12 + 4 * j: 15 + 4 * j] = axes[j]
-                r[15 + 4 * j] = half[j]
-            r[24:27] = m.color
-            r[28:31] = m.color2
-        return out
+        """Object records for ``kernels/raytrace.cl`` (float32, (n, OBJ_STRIDE)), nearest
+        first: slot 27 holds the least depth the object reaches over the shutter (0 for
+        planes and objects reaching the lens plane), which lets the kernel stop early."""
+        if not self.objects:
+            return np.zeros((1, OBJ_STRIDE), np.float32)
+        records = np.stack([_record(ob) for ob in self.objects])
+        return records[np.argsort(records[:, 27], kind="stable")]
 
     def screen_bounds(self, width: int, height: int) -> np.ndarray:
         """Per object (xmin, ymin, xmax, ymax) in pixels: a superset of where any sample of
@@ -185,8 +163,8 @@ class Scene:
         records = self.pack().astype(np.float64)
         out = np.tile(np.array([-np.inf, -np.inf, np.inf, np.inf], np.float32),
                       (max(len(self.objects), 1), 1))
-        for k, ob in enumerate(self.objects):
-            pts = _hull_points(ob, records[k])
+        for k, rec in enumerate(records[: len(self.objects)]):
+            pts = _hull_points(rec)
             if pts is None:
                 continue
             z0, z1 = pts[:, 2].min(), pts[:, 2].max()
@@ -205,13 +183,48 @@ class Scene:
         return np.array([*d, self.ambient], np.float32)
 
 
-def _hull_points(ob, rec: np.ndarray) -> np.ndarray | None:
-    """Camera-space corners of a box containing the object over the whole shutter."""
-    if isinstance(ob, Plane):
+def _record(ob) -> np.ndarray:
+    """One object's record (see kernels/raytrace.cl for the layout)."""
+    r = np.zeros(OBJ_STRIDE, np.float32)
+    m = ob.material
+    r[0] = _TYPE[type(ob)]
+    r[1] = TEXTURES[m.texture]
+    r[2] = m.emission
+    r[3] = m.period
+    r[4:7] = ob.centre
+    r[8:11] = ob.velocity
+    axes = rotation(*getattr(ob, "rotate", (0.0, 0.0, 0.0)))
+    if isinstance(ob, Sphere):
+        half = (0.0, 0.0, 0.0)
+        r[7] = ob.radius
+        reach = ob.radius
+    elif isinstance(ob, Plane):
+        half = (0.0, 0.0, 0.0)
+        reach = math.inf
+    else:
+        half = tuple(ob.half) + (0.0,) * (3 - len(ob.half))
+        reach = math.hypot(*half)
+    # bounding sphere over the whole shutter (slot 11): the kernel's cheap reject
+    r[11] = reach + 0.5 * math.hypot(*ob.velocity)
+    for j in range(3):
+        r[12 + 4 * j: 15 + 4 * j] = axes[j]
+        r[15 + 4 * j] = half[j]
+    r[24:27] = m.color
+    r[28:31] = m.color2
+    pts = _hull_points(r.astype(np.float64))
+    r[27] = 0.0 if pts is None else max(0.0, float(pts[:, 2].min()))
+    return r
+
+
+def _hull_points(rec: np.ndarray) -> np.ndarray | None:
+    """Camera-space corners of a box containing a packed object over the whole shutter
+    (None for a plane)."""
+    kind = int(rec[0])
+    if kind == 3:
         return None
     c, v = rec[4:7], rec[8:11]
-    if isinstance(ob, Sphere):
-        axes, half = np.eye(3), np.full(3, ob.radius)
+    if kind == 0:
+        axes, half = np.eye(3), np.full(3, rec[7])
     else:
         axes = np.stack([rec[12:15], rec[16:19], rec[20:23]])
         half = np.array([rec[15], rec[19], rec[23]])

@@ -78,10 +78,12 @@ def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 
     return SampleBuffer(**host, coc_model=cam.coc_model)
 
 
-def render_reference(scene: Scene, width: int, height: int, spp: int = 1024, seed: int = 1,
-                     device: DeviceSpec | Device = None, progress: Progress = None) -> np.ndarray:
+def render_reference(scene: Scene, width: int, height: int, spp: int | None = None,
+                     seed: int = 1, device: DeviceSpec | Device = None,
+                     progress: Progress = None) -> np.ndarray:
     """Converged image: lens, shutter and pixel area integrated with ``spp`` samples per pixel
-    (box pixel filter), accumulated in float64 on the host over chunks."""
+    (box pixel filter; default ``scene.reference_spp``), accumulated in float64 on the host."""
+    spp = scene.reference_spp if spp is None else spp
     _check_size(width, height, spp)
     dev = _get_device(device)
     ctx, q = dev.context, dev.queue
