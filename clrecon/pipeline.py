@@ -138,7 +138,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, **knobs) ->
 
 
 def _load_methods() -> None:
-    from . import box  # noqa: F401  (registers itself)
+    from . import box, sweep  # noqa: F401  (they register themselves)
 
 
 @dataclass

@@ -229,4 +229,5 @@ def pixel_centres(height: int, width: int, spp: int) -> np.ndarray:
     ys, xs = np.meshgrid(np.arange(height, dtype=np.float32) + 0.5,
                          np.arange(width, dtype=np.float32) + 0.5, indexing="ij")
     pos = np.stack([xs, ys], -1)[:, :, None, :]
-    return np.ascontiguousarray(np.broadcast_to(pos, (height, width, spp, 2)), dtype=np.float32)
+    # a real copy: a broadcast view would be read-only (and shared by every sample)
+    return np.array(np.broadcast_to(pos, (height, width, spp, 2)), dtype=np.float32)

@@ -312,3 +312,10 @@ def test_zeros_layout():
     assert buf.nbytes == 2 * 3 * 4 * (3 + 2 + 1 + 2 + 1 + 2) * 4
     assert_close(buf.position[1, 2, 3], [2.5, 1.5], rtol=0, atol=0, what="pixel centre")
     assert set(buf.arrays()) == set(FIELDS)
+
+
+def test_zeros_fields_are_writable_for_every_shape():
+    for shape in ((1, 1, 1), (1, 3, 1), (2, 2, 4)):
+        buf = SampleBuffer.zeros(*shape)
+        buf.position[..., 0] += 0.25  # a broadcast view would raise here
+        assert buf.position.flags.writeable and buf.position.flags.owndata

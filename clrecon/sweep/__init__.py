@@ -1,0 +1,71 @@
+"""Method ``sweep``: local reconstruction by a front-to-back sweep (Shirley et al. 2011).
+
+Plans (knobs in brackets):
+
+* sorted sweep [``scales=2`` (Appendix A, 1x1/5x5 blended) or ``4`` (Appendix B)]:
+  ``sweep_prepare`` -> ``sweep_resolve`` [``sort="tile"|"pixel"``, ``tile``, ``exponent``];
+* ``dof_layers=True``: the sort-free three-layer depth-of-field variant,
+  ``sweep_layer_sums`` -> ``sweep_layer_resolve`` (defocus only: motion is not smoothed).
+
+``diameter_scale`` scales the denoising diameter ``max(2|coc|, |motion|)``;
+``smooth_motion`` (default: whether the frame has motion) adds the motion term.
+"""
+from __future__ import annotations
+
+import pyopencl as cl
+
+from ..pipeline import DeviceSamples, Pipeline, register
+from .layers import SweepLayerResolve, SweepLayerSums
+from .prepare import SweepPrepare
+from .resolve import SweepResolve
+
+
+@register
+class SweepPipeline(Pipeline):
+    name = "sweep"
+
+    def __init__(self, context, info, scales: int = 2, dof_layers: bool = False,
+                 exponent: float = 1.0, smooth_motion: bool | None = None,
+                 diameter_scale: float = 1.0, sort: str = "tile", tile: int = 4):
+        super().__init__(context, info)
+        if not diameter_scale >= 0:
+            raise ValueError(f"diameter_scale: must be >= 0, got {diameter_scale}")
+        self.scales, self.dof_layers, self.exponent = int(scales), bool(dof_layers), exponent
+        self.smooth_motion = info.has_motion if smooth_motion is None else bool(smooth_motion)
+        self.diameter_scale = float(diameter_scale)
+        spp = info.spp
+        npix = info.width * info.height
+        rw = cl.mem_flags.READ_WRITE
+        if self.dof_layers:
+            self.fields = ("color", "depth")
+            self.sums_pass = SweepLayerSums(context, spp)
+            self.combine = SweepLayerResolve(context, spp)
+            self.sums = cl.Buffer(context, rw, npix * 3 * 16)
+        else:
+            self.fields = ("color", "position", "depth", "motion")
+            self.prepare = SweepPrepare(context, spp, self.smooth_motion)
+            self.resolve = SweepResolve(context, spp, self.scales, exponent, sort, tile)
+            self.keys = cl.Buffer(context, rw, npix * spp * 16)
+            self.colors = cl.Buffer(context, rw, npix * spp * 16)
+
+    def describe(self) -> dict:
+        d = {"method": "sweep", "diameter_scale": self.diameter_scale}
+        if self.dof_layers:
+            return d | {"mode": "dof_layers", "smooth_motion": False}
+        return d | {"mode": f"{self.scales}-scale", "scales": self.scales,
+                    "exponent": self.exponent, "smooth_motion": self.smooth_motion,
+                    "sort": self.resolve.sort, "tile": self.resolve.tile}
+
+    def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
+        w, h = samples.width, samples.height
+        if self.dof_layers:
+            ev = self.sums_pass(queue, samples, self.diameter_scale, self.sums, wait_for)
+            self.events.append(("sweep_layer_sums", ev))
+            ev = self.combine(queue, self.sums, w, h, out, [ev])
+            self.events.append(("sweep_layer_resolve", ev))
+            return ev
+        ev = self.prepare(queue, samples, self.diameter_scale, self.keys, self.colors, wait_for)
+        self.events.append(("sweep_prepare", ev))
+        ev = self.resolve(queue, self.keys, self.colors, w, h, out, [ev])
+        self.events.append(("sweep_resolve", ev))
+        return ev

@@ -1,0 +1,61 @@
+"""Pass ``sweep_resolve``: the front-to-back sweep over each pixel's window."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ..device import get_kernel
+from ..pipeline import LocalSize
+
+SORTS = ("tile", "pixel")
+
+
+def tile_sort_size(tile: int, scales: int, spp: int) -> int:
+    """Entries the tile kernel sorts: the next power of two of (tile + 2R)^2 * spp."""
+    r = 2 if scales == 2 else 3
+    n = (tile + 2 * r) ** 2 * spp
+    return 1 << (n - 1).bit_length()
+
+
+def tile_local_bytes(tile: int, scales: int, spp: int) -> int:
+    r = 2 if scales == 2 else 3
+    return (tile + 2 * r) ** 2 * spp * 16 + tile_sort_size(tile, scales, spp) * 6
+
+
+class SweepResolve:
+    """``kernels/sweep_resolve.cl``: ``sort="tile"`` (one local-memory sort per tile) or
+    ``"pixel"`` (each pixel merges its window's sorted lists); both give the same image."""
+
+    name = "sweep_resolve"
+
+    def __init__(self, context: cl.Context, spp: int, scales: int = 2, exponent: float = 1.0,
+                 sort: str = "tile", tile: int = 4, local: LocalSize | None = None):
+        if scales not in (2, 4):
+            raise ValueError(f"scales: must be 2 or 4, got {scales}")
+        if sort not in SORTS:
+            raise ValueError(f"sort: must be one of {SORTS}, got {sort!r}")
+        if not exponent > 0:
+            raise ValueError(f"exponent: must be positive, got {exponent}")
+        self.sort, self.tile = sort, int(tile)
+        defines = {"SPP": spp, "SCALES": scales, "EXPONENT": float(exponent),
+                   "EXPONENT_ON": exponent != 1.0}
+        if sort == "tile":
+            dev = context.devices[0]
+            need = tile_local_bytes(self.tile, scales, spp)
+            too_big = self.tile ** 2 > dev.max_work_group_size
+            if self.tile < 1 or need > dev.local_mem_size or too_big:
+                raise ValueError(
+                    f"tile: {self.tile} needs {need} bytes of local memory for {spp} spp "
+                    f"(device has {dev.local_mem_size}); use a smaller tile or sort='pixel'")
+            defines.update(TILE=self.tile, SORT_N=tile_sort_size(self.tile, scales, spp))
+            self.local = LocalSize(self.tile, self.tile)
+            self.kernel = get_kernel(context, "sweep_resolve", "sweep_resolve_tile", defines)
+        else:
+            self.local = local or LocalSize(16, 4)
+            self.kernel = get_kernel(context, "sweep_resolve", "sweep_resolve_pixel", defines)
+
+    def __call__(self, queue, keys: cl.Buffer, colors: cl.Buffer, width: int, height: int,
+                 out: cl.Buffer, wait_for=None) -> cl.Event:
+        self.kernel.set_args(keys, colors, np.int32(width), np.int32(height), out)
+        g, loc = self.local.for_range(width, height)
+        return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)

@@ -1,0 +1,60 @@
+/* sweep_prepare.cl: per-sample denoising diameter and per-pixel front-to-back order, the
+ * input of sweep_resolve (Shirley et al. 2011).
+ *
+ * sweep_prepare: one work-item per pixel. For each of the pixel's SPP samples computes
+ *   D = dscale * max(2 |coc(w)|, |motion|)   (the motion term only with SMOOTH_MOTION)
+ * and writes the samples sorted by depth (stable: equal depths keep sample order) as
+ *   keys   float4 (H, W, SPP): (x, y, depth, D)
+ *   colors float4 (H, W, SPP): (r, g, b, 0)
+ * Inputs are the SoA sample fields: color (H,W,S,3), position (H,W,S,2), depth (H,W,S),
+ * motion (H,W,S,2). coc(w) = c0 / w + c1 (inf depth gives c1).
+ * Compile-time: SPP (samples per pixel, <= 256), SMOOTH_MOTION (0/1).
+ * Tunables: WG_X, WG_Y (local size).
+ */
+#include "common.h"
+
+#ifndef SPP
+#define SPP 16
+#endif
+#ifndef SMOOTH_MOTION
+#define SMOOTH_MOTION 1
+#endif
+#ifndef WG_X
+#define WG_X 16
+#endif
+#ifndef WG_Y
+#define WG_Y 4
+#endif
+
+__kernel void sweep_prepare(__global const float *color, __global const float *position,
+                            __global const float *depth, __global const float *motion,
+                            const int width, const int height, const float c0, const float c1,
+                            const float dscale, __global float4 *keys, __global float4 *colors)
+{
+    const int px = get_global_id(0), py = get_global_id(1);
+    if (px >= width || py >= height)
+        return;
+    const size_t base = (size_t)pixel_index(px, py, width) * SPP;
+    float4 k[SPP];
+    int order[SPP];
+    for (int i = 0; i < SPP; ++i) {
+        const float z = depth[base + i];
+        float d = 2.0f * fabs(c0 / z + c1);
+#if SMOOTH_MOTION
+        d = fmax(d, length(vload2(base + i, motion)));
+#endif
+        k[i] = (float4)(vload2(base + i, position), z, dscale * d);
+        /* insertion sort of indices by depth; strict > keeps equal depths in order */
+        int j = i;
+        while (j > 0 && k[order[j - 1]].z > z) {
+            order[j] = order[j - 1];
+            --j;
+        }
+        order[j] = i;
+    }
+    for (int i = 0; i < SPP; ++i) {
+        const int s = order[i];
+        keys[base + i] = k[s];
+        colors[base + i] = (float4)(vload3(base + s, color), 0.0f);
+    }
+}

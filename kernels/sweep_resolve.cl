@@ -1,0 +1,204 @@
+/* sweep_resolve.cl: the front-to-back sweep of Shirley et al. 2011 (Algorithm 2 with the
+ * weights of Appendix A, two scales 1x1/5x5 blended, or Appendix B, four scales 1/3/5/7).
+ *
+ * Input: keys/colors of sweep_prepare (per pixel sorted by depth). Output: out (H, W, 3).
+ * Every pixel sweeps the samples of its (2R+1)^2 window (R = 2 or 3; pixels outside the
+ * image contribute nothing) in depth order; equal depths keep window order (row-major, then
+ * the pixel's own order), as the NumPy reference in clrecon/sweep/reference.py does.
+ *
+ * Two ways to get that order, same result:
+ *   sweep_resolve_pixel: each work-item merges the K sorted lists of its window (K-way
+ *     merge by linear scan of the list heads).
+ *   sweep_resolve_tile: a TILE x TILE work-group loads the sorted keys of the tile and its
+ *     apron into local memory, sorts them once (bitonic, by depth then position in the
+ *     tile), and every pixel walks that list, skipping samples outside its window.
+ * Compile-time: SPP, SCALES (2 or 4), EXPONENT (the paper's 1.3 variant; 1 = off),
+ *   SORT_N (power of two >= (TILE + 2R)^2 * SPP, tile kernel only).
+ * Tunables: TILE (tile kernel: local size TILE x TILE), WG_X, WG_Y (pixel kernel).
+ */
+#include "common.h"
+
+#ifndef SPP
+#define SPP 16
+#endif
+#ifndef SCALES
+#define SCALES 2
+#endif
+#ifndef EXPONENT
+#define EXPONENT 1.0f
+#endif
+#ifndef EXPONENT_ON
+#define EXPONENT_ON 0  // host sets 1 when EXPONENT != 1
+#endif
+#ifndef TILE
+#define TILE 4
+#endif
+#ifndef WG_X
+#define WG_X 16
+#endif
+#ifndef WG_Y
+#define WG_Y 4
+#endif
+
+#if SCALES == 2
+#define R 2
+#else
+#define R 3
+#endif
+#define WIN (2 * R + 1)
+#define TW (TILE + 2 * R)
+#define TILE_SAMPLES (TW * TW * SPP)
+#ifndef SORT_N
+#define SORT_N 1024
+#endif
+
+typedef struct {
+    float cov_1, cov_3, cov_5, cov_7, cov;
+    float3 sum;
+} sweep_state;
+
+inline float box(float x, float radius) { return fabs(x) < radius ? 0.5f / radius : 0.0f; }
+
+/* One step of the sweep for a sample at offset (x, y) from the pixel centre. */
+inline void sweep_step(sweep_state *st, float x, float y, float d, float3 c)
+{
+    const float ns_inv = 1.0f / SPP;
+    const float w_1 = ns_inv * box(x, 0.5f) * box(y, 0.5f);
+    const float w_5 = ns_inv * box(x, 2.5f) * box(y, 2.5f);
+    float w;
+#if SCALES == 2
+    const float blend = clamp((d - 1.0f) / 5.0f, 0.0f, 1.0f);
+    w = blend * (w_5 * (1.0f - st->cov_1) + w_1 * st->cov_1);
+    st->cov_5 += blend * (w_5 * (1.0f - st->cov_1));
+    w += (1.0f - blend) * (w_1 * (1.0f - st->cov_5) + w_5 * st->cov_5);
+    st->cov_1 += (1.0f - blend) * (w_1 * (1.0f - st->cov_5));
+#else
+    const float w_3 = ns_inv * box(x, 1.5f) * box(y, 1.5f);
+    const float w_7 = ns_inv * box(x, 3.5f) * box(y, 3.5f);
+    const float c1 = st->cov_1, c3 = st->cov_3, c5 = st->cov_5, c7 = st->cov_7;
+    if (d > 7.0f) {
+        w = w_7 * (1.0f - c1 - c3 - c5) + w_1 * c1 + w_3 * c3 + w_5 * c5;
+        st->cov_7 += w_7 * (1.0f - c1 - c3 - c5);
+    } else if (d > 5.0f) {
+        w = w_5 * (1.0f - c1 - c3 - c7) + w_1 * c1 + w_3 * c3 + w_7 * c7;
+        st->cov_5 += w_5 * (1.0f - c1 - c3 - c7);
+    } else if (d > 3.0f) {
+        w = w_3 * (1.0f - c1 - c5 - c7) + w_1 * c1 + w_5 * c5 + w_7 * c7;
+        st->cov_3 += w_3 * (1.0f - c1 - c5 - c7);
+    } else {
+        w = w_1 * (1.0f - c3 - c5 - c7) + w_3 * c3 + w_5 * c5 + w_7 * c7;
+        st->cov_1 += w_1 * (1.0f - c3 - c5 - c7);
+    }
+#endif
+#if EXPONENT_ON
+    w = pow(w, EXPONENT);
+#endif
+    st->cov += w;
+    st->sum += w * c;
+}
+
+inline void sweep_init(sweep_state *st)
+{
+    st->cov_1 = st->cov_3 = st->cov_5 = st->cov_7 = st->cov = 0.0f;
+    st->sum = (float3)(0.0f);
+}
+
+__kernel void sweep_resolve_pixel(__global const float4 *keys, __global const float4 *colors,
+                                  const int width, const int height, __global float *out)
+{
+    const int px = get_global_id(0), py = get_global_id(1);
+    if (px >= width || py >= height)
+        return;
+    int base[WIN * WIN], cur[WIN * WIN];
+    float head[WIN * WIN];
+    for (int j = 0; j < WIN * WIN; ++j) {
+        const int qx = px + j % WIN - R, qy = py + j / WIN - R;
+        const bool inside = qx >= 0 && qx < width && qy >= 0 && qy < height;
+        base[j] = inside ? pixel_index(qx, qy, width) * SPP : 0;
+        cur[j] = inside ? 0 : SPP;
+        head[j] = inside ? keys[base[j]].z : INFINITY;
+    }
+    const float cx = px + 0.5f, cy = py + 0.5f;
+    sweep_state st;
+    sweep_init(&st);
+    for (;;) {
+        int best = -1;
+        for (int j = 0; j < WIN * WIN; ++j)
+            if (cur[j] < SPP && (best < 0 || head[j] < head[best]))
+                best = j;
+        if (best < 0)
+            break;
+        const int idx = base[best] + cur[best];
+        const float4 k = keys[idx];
+        ++cur[best];
+        head[best] = cur[best] < SPP ? keys[idx + 1].z : INFINITY;
+        sweep_step(&st, k.x - cx, k.y - cy, k.w, colors[idx].xyz);
+    }
+    vstore3(st.sum / st.cov, pixel_index(px, py, width), out);
+}
+
+__kernel __attribute__((reqd_work_group_size(TILE, TILE, 1)))
+void sweep_resolve_tile(__global const float4 *keys, __global const float4 *colors,
+                        const int width, const int height, __global float *out)
+{
+    __local float4 lkeys[TILE_SAMPLES];
+    __local float lz[SORT_N];
+    __local ushort lidx[SORT_N];
+    const int lx = get_local_id(0), ly = get_local_id(1);
+    const int lid = ly * TILE + lx;
+    const int x0 = get_group_id(0) * TILE - R, y0 = get_group_id(1) * TILE - R;
+    for (int i = lid; i < SORT_N; i += TILE * TILE) {
+        float z = INFINITY;
+        if (i < TILE_SAMPLES) {
+            const int t = i / SPP, s = i % SPP;
+            const int qx = x0 + t % TW, qy = y0 + t / TW;
+            float4 k = (float4)(0.0f, 0.0f, INFINITY, 0.0f);
+            if (qx >= 0 && qx < width && qy >= 0 && qy < height)
+                k = keys[pixel_index(qx, qy, width) * SPP + s];
+            lkeys[i] = k;
+            z = k.z;
+        }
+        lz[i] = z;
+        lidx[i] = (ushort)i;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    /* bitonic sort of (depth, index): index ties keep tile order, and padding (index >=
+     * TILE_SAMPLES, depth inf) sorts after every real entry */
+    for (int size = 2; size <= SORT_N; size <<= 1) {
+        for (int stride = size >> 1; stride > 0; stride >>= 1) {
+            for (int i = lid; i < SORT_N / 2; i += TILE * TILE) {
+                const int a = 2 * i - (i & (stride - 1));
+                const int b = a + stride;
+                const bool up = (a & size) == 0;
+                const float za = lz[a], zb = lz[b];
+                const ushort ia = lidx[a], ib = lidx[b];
+                const bool greater = za > zb || (za == zb && ia > ib);
+                if (greater == up) {
+                    lz[a] = zb; lz[b] = za;
+                    lidx[a] = ib; lidx[b] = ia;
+                }
+            }
+            barrier(CLK_LOCAL_MEM_FENCE);
+        }
+    }
+    const int px = x0 + R + lx, py = y0 + R + ly;
+    if (px >= width || py >= height)
+        return;
+    const float cx = px + 0.5f, cy = py + 0.5f;
+    sweep_state st;
+    sweep_init(&st);
+    for (int p = 0; p < TILE_SAMPLES; ++p) {
+        const int i = lidx[p];
+        const int t = i / SPP;
+        const int tx = t % TW, ty = t / TW;
+        if (abs(tx - R - lx) > R || abs(ty - R - ly) > R)
+            continue;
+        const int qx = x0 + tx, qy = y0 + ty;
+        if (qx < 0 || qx >= width || qy < 0 || qy >= height)
+            continue;
+        const float4 k = lkeys[i];
+        const float3 c = colors[pixel_index(qx, qy, width) * SPP + i % SPP].xyz;
+        sweep_step(&st, k.x - cx, k.y - cy, k.w, c);
+    }
+    vstore3(st.sum / st.cov, pixel_index(px, py, width), out);
+}
