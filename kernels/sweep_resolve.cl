@@ -14,7 +14,10 @@
  *     tile), and every pixel walks that list, skipping samples outside its window.
  * Compile-time: SPP, SCALES (2 or 4), EXPONENT (the paper's 1.3 variant; 1 = off),
  *   SORT_N (power of two >= (TILE + 2R)^2 * SPP, tile kernel only).
- * Tunables: TILE (tile kernel: local size TILE x TILE), WG_X, WG_Y (pixel kernel).
+ * Tunables: TILE (tile kernel: local size TILE x TILE), WG_X, WG_Y (pixel kernel),
+ *   TILE_MERGE (tile kernel): 0 = bitonic sort by all work-items (GPUs), 1 = one work-item
+ *   merges the tile's per-pixel sorted runs through a winner tree (CPUs, where the items
+ *   of a group run one after another anyway: ~5x fewer operations than the network).
  */
 #include "common.h"
 
@@ -51,6 +54,12 @@
 #ifndef SORT_N
 #define SORT_N 1024
 #endif
+#ifndef TILE_MERGE
+#define TILE_MERGE 0
+#endif
+#define RUNS (TW * TW)
+#define LEAVES (RUNS <= 16 ? 16 : RUNS <= 32 ? 32 : RUNS <= 64 ? 64 : RUNS <= 128 ? 128 : \
+                RUNS <= 256 ? 256 : RUNS <= 512 ? 512 : 1024)
 
 typedef struct {
     float cov_1, cov_3, cov_5, cov_7, cov;
@@ -162,6 +171,35 @@ void sweep_resolve_tile(__global const float4 *keys, __global const float4 *colo
         lidx[i] = (ushort)i;
     }
     barrier(CLK_LOCAL_MEM_FENCE);
+#if TILE_MERGE
+    /* Each pixel's run of SPP keys is already sorted (sweep_prepare); merge the RUNS runs
+     * with a winner tree. Key: depth bits (depth > 0, so its IEEE bits order like the
+     * value) above the run index, so ties go to the lower tile index like the sort. */
+    if (lid == 0) {
+        ulong tree[2 * LEAVES];
+        int pos[RUNS];
+        for (int r = 0; r < LEAVES; ++r) {
+            ulong key = ULONG_MAX;
+            if (r < RUNS) {
+                pos[r] = 0;
+                key = ((ulong)as_uint(lz[r * SPP]) << 32) | (uint)r;
+            }
+            tree[LEAVES + r] = key;
+        }
+        for (int i = LEAVES - 1; i > 0; --i)
+            tree[i] = min(tree[2 * i], tree[2 * i + 1]);
+        for (int p = 0; p < TILE_SAMPLES; ++p) {
+            const int r = (int)(tree[1] & 0xFFFFFFFFUL);
+            const int k = r * SPP + pos[r]++;
+            lidx[p] = (ushort)k;
+            int i = LEAVES + r;
+            tree[i] = pos[r] < SPP ? ((ulong)as_uint(lz[k + 1]) << 32) | (uint)r : ULONG_MAX;
+            for (i >>= 1; i > 0; i >>= 1)
+                tree[i] = min(tree[2 * i], tree[2 * i + 1]);
+        }
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+#else
     /* bitonic sort of (depth, index): index ties keep tile order, and padding (index >=
      * TILE_SAMPLES, depth inf) sorts after every real entry */
     for (int size = 2; size <= SORT_N; size <<= 1) {
@@ -181,6 +219,7 @@ void sweep_resolve_tile(__global const float4 *keys, __global const float4 *colo
             barrier(CLK_LOCAL_MEM_FENCE);
         }
     }
+#endif
     const int px = x0 + R + lx, py = y0 + R + ly;
     if (px >= width || py >= height)
         return;

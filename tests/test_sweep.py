@@ -39,6 +39,8 @@ CASES = [
     dict(scales=4, sort="tile"), dict(scales=4, sort="pixel"),
     dict(scales=2, exponent=1.3), dict(scales=2, smooth_motion=False),
     dict(scales=2, diameter_scale=0.5), dict(scales=2, sort="tile", tile=8),
+    dict(scales=2, tile_merge="serial"), dict(scales=2, tile_merge="bitonic"),
+    dict(scales=4, tile_merge="serial", tile=8), dict(scales=4, tile_merge="bitonic"),
 ]
 
 
@@ -48,7 +50,8 @@ def test_sorted_sweep_matches_reference(device, rng, knobs):
     d = ref.denoising_diameter(buf, knobs.get("smooth_motion", True),
                                knobs.get("diameter_scale", 1.0))
     assert d.min() < 1 and d.max() > 7, "the frame must exercise every scale"
-    want = ref.reconstruct(buf, **{k: v for k, v in knobs.items() if k not in ("sort", "tile")})
+    hw = ("sort", "tile", "tile_merge")
+    want = ref.reconstruct(buf, **{k: v for k, v in knobs.items() if k not in hw})
     got = clrecon.reconstruct(buf, "sweep", device, **knobs)
     assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"sweep {knobs}")
 

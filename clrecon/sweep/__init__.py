@@ -3,7 +3,8 @@
 Plans (knobs in brackets):
 
 * sorted sweep [``scales=2`` (Appendix A, 1x1/5x5 blended) or ``4`` (Appendix B)]:
-  ``sweep_prepare`` -> ``sweep_resolve`` [``sort="tile"|"pixel"``, ``tile``, ``exponent``];
+  ``sweep_prepare`` -> ``sweep_resolve`` [``sort="tile"|"pixel"``, ``tile``,
+  ``tile_merge="auto"|"serial"|"bitonic"``, ``exponent``];
 * ``dof_layers=True``: the sort-free three-layer depth-of-field variant,
   ``sweep_layer_sums`` -> ``sweep_layer_resolve`` (defocus only: motion is not smoothed).
 
@@ -26,7 +27,8 @@ class SweepPipeline(Pipeline):
 
     def __init__(self, context, info, scales: int = 2, dof_layers: bool = False,
                  exponent: float = 1.0, smooth_motion: bool | None = None,
-                 diameter_scale: float = 1.0, sort: str = "tile", tile: int = 4):
+                 diameter_scale: float = 1.0, sort: str = "tile", tile: int = 4,
+                 tile_merge: str = "auto"):
         super().__init__(context, info)
         if not diameter_scale >= 0:
             raise ValueError(f"diameter_scale: must be >= 0, got {diameter_scale}")
@@ -44,7 +46,8 @@ class SweepPipeline(Pipeline):
         else:
             self.fields = ("color", "position", "depth", "motion")
             self.prepare = SweepPrepare(context, spp, self.smooth_motion)
-            self.resolve = SweepResolve(context, spp, self.scales, exponent, sort, tile)
+            self.resolve = SweepResolve(context, spp, self.scales, exponent, sort, tile,
+                                        tile_merge)
             self.keys = cl.Buffer(context, rw, npix * spp * 16)
             self.colors = cl.Buffer(context, rw, npix * spp * 16)
 
@@ -54,7 +57,8 @@ class SweepPipeline(Pipeline):
             return d | {"mode": "dof_layers", "smooth_motion": False}
         return d | {"mode": f"{self.scales}-scale", "scales": self.scales,
                     "exponent": self.exponent, "smooth_motion": self.smooth_motion,
-                    "sort": self.resolve.sort, "tile": self.resolve.tile}
+                    "sort": self.resolve.sort, "tile": self.resolve.tile,
+                    "tile_merge": self.resolve.tile_merge}
 
     def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
         w, h = samples.width, samples.height

@@ -8,6 +8,7 @@ from ..device import get_kernel
 from ..pipeline import LocalSize
 
 SORTS = ("tile", "pixel")
+TILE_MERGES = ("auto", "serial", "bitonic")
 
 
 def tile_sort_size(tile: int, scales: int, spp: int) -> int:
@@ -23,20 +24,22 @@ def tile_local_bytes(tile: int, scales: int, spp: int) -> int:
 
 
 class SweepResolve:
-    """``kernels/sweep_resolve.cl``: ``sort="tile"`` (one local-memory sort per tile) or
-    ``"pixel"`` (each pixel merges its window's sorted lists); both give the same image."""
+    """``kernels/sweep_resolve.cl``: ``sort="tile"`` (one local-memory sort per tile, by a
+    serial winner-tree merge or a bitonic network: ``tile_merge``, default by device type) or
+    ``"pixel"`` (each pixel merges its window's sorted lists); all give the same image."""
 
     name = "sweep_resolve"
 
     def __init__(self, context: cl.Context, spp: int, scales: int = 2, exponent: float = 1.0,
-                 sort: str = "tile", tile: int = 4, local: LocalSize | None = None):
+                 sort: str = "tile", tile: int = 4, tile_merge: str = "auto",
+                 local: LocalSize | None = None):
         if scales not in (2, 4):
             raise ValueError(f"scales: must be 2 or 4, got {scales}")
         if sort not in SORTS:
             raise ValueError(f"sort: must be one of {SORTS}, got {sort!r}")
         if not exponent > 0:
             raise ValueError(f"exponent: must be positive, got {exponent}")
-        self.sort, self.tile = sort, int(tile)
+        self.sort, self.tile, self.tile_merge = sort, int(tile), None
         defines = {"SPP": spp, "SCALES": scales, "EXPONENT": float(exponent),
                    "EXPONENT_ON": exponent != 1.0}
         if sort == "tile":
@@ -47,7 +50,13 @@ class SweepResolve:
                 raise ValueError(
                     f"tile: {self.tile} needs {need} bytes of local memory for {spp} spp "
                     f"(device has {dev.local_mem_size}); use a smaller tile or sort='pixel'")
-            defines.update(TILE=self.tile, SORT_N=tile_sort_size(self.tile, scales, spp))
+            if tile_merge not in TILE_MERGES:
+                raise ValueError(f"tile_merge: must be one of {TILE_MERGES}, got {tile_merge!r}")
+            if tile_merge == "auto":  # serial merge where a group runs on one core anyway
+                tile_merge = "serial" if dev.type & cl.device_type.CPU else "bitonic"
+            self.tile_merge = tile_merge
+            defines.update(TILE=self.tile, SORT_N=tile_sort_size(self.tile, scales, spp),
+                           TILE_MERGE=tile_merge == "serial")
             self.local = LocalSize(self.tile, self.tile)
             self.kernel = get_kernel(context, "sweep_resolve", "sweep_resolve_tile", defines)
         else:
