@@ -2,7 +2,8 @@
 
 Subcommands: ``devices``, ``scene``, ``reference``, ``reconstruct``, ``compare``, ``demo``
 (the quick start's main job) and ``report`` (generator throughput, reference convergence
-and box-filter quality of the built-in scenes).
+and box-filter quality of the built-in scenes); ``table`` compares the device time and
+quality of reconstruction variants side by side.
 """
 from __future__ import annotations
 
@@ -128,6 +129,10 @@ def cmd_reconstruct(args) -> int:
 
     knobs = dict(kv.split("=", 1) for kv in args.knob or [])
     knobs = {k: _parse_value(v) for k, v in knobs.items()}
+    for name in METHOD_FLAGS:  # method flags given on the command line become knobs
+        value = getattr(args, name)
+        if value is not None and value is not False:
+            knobs[name] = value
     buf = load_samples(args.input)
     res = run(buf, args.method, args.device, **knobs)
     save_image(args.output, res.image)
@@ -148,6 +153,10 @@ def cmd_reconstruct(args) -> int:
         print(f"quality vs {args.reference}: PSNR {q['psnr']:.2f} dB, SSIM {q['ssim']:.4f}, "
               f"FLIP {q['flip']:.4f}")
     return 0
+
+
+#: argparse destinations of ``reconstruct`` that are method knobs of the same name
+METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile")
 
 
 def _parse_value(v: str):
@@ -222,6 +231,29 @@ def cmd_report(args) -> int:
     return 0
 
 
+def _variant(text: str):
+    from .bench.methods import parse_variant
+
+    try:
+        return parse_variant(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def cmd_table(args) -> int:
+    from .bench.methods import methods_table
+
+    bar = _Bar("table", unit="step")
+    try:
+        rep = methods_table(args.scenes, variants=args.variant, size=args.size or (512, 512),
+                            spp=args.spp, device=args.device, out_dir=args.output,
+                            repeats=args.repeats, progress=bar, ref_spp=args.ref_spp)
+    finally:
+        bar.close()
+    print(rep["markdown"])
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="clrecon", description=__doc__.splitlines()[0])
     p.add_argument("-v", "--verbose", action="store_true", help="log what the library decides")
@@ -259,7 +291,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--method", default="box")
     sp.add_argument("--reference", help="converged reference .exr: print PSNR/SSIM/FLIP")
     sp.add_argument("--knob", action="append", metavar="NAME=VALUE",
-                    help="method knob (repeatable)")
+                    help="method knob (repeatable); the flags below are shorthands")
+    sp.add_argument("--scales", type=int, choices=(2, 4), help="sweep: blend 2 or 4 scales")
+    sp.add_argument("--dof-layers", action="store_true",
+                    help="sweep: sort-free three-layer depth-of-field variant")
+    sp.add_argument("--exponent", type=float, help="sweep: weight exponent (paper: 1.3)")
+    sp.add_argument("--sort", choices=("tile", "pixel"), help="sweep: how the window is ordered")
+    sp.add_argument("--tile", type=int, help="sweep: tile size of sort=tile")
     sp.add_argument("--json", action="store_true", help="print one JSON object")
     dev(sp)
     sp.set_defaults(fn=cmd_reconstruct)
@@ -289,6 +327,20 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("-o", "--output", default="out/report")
     dev(sp)
     sp.set_defaults(fn=cmd_report)
+
+    sp = sub.add_parser("table", help="device time and quality of reconstruction variants")
+    sp.add_argument("--scenes", nargs="*", default=None)
+    sp.add_argument("--variant", action="append", type=_variant, default=None,
+                    metavar="SPEC",
+                    help="a column, [LABEL=]METHOD[:K=V,...], e.g. sweep4=sweep:scales=4 "
+                         "(repeatable; default: box and four sweep variants)")
+    sp.add_argument("--size", type=_size, default=None, help="WxH (default 512x512)")
+    sp.add_argument("--spp", type=int, default=16)
+    sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
+    sp.add_argument("--repeats", type=int, default=5, help="timed runs after a warm-up")
+    sp.add_argument("-o", "--output", default="out/methods")
+    dev(sp)
+    sp.set_defaults(fn=cmd_table)
     return p
 
 

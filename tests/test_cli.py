@@ -86,3 +86,18 @@ def test_tlfr_from_another_tool_reconstructs(tmp_path, capsys):
     np.testing.assert_allclose(load_image(out), want, rtol=1e-5, atol=1e-6)
     buf = load_samples(data)
     np.testing.assert_allclose(buf.motion[..., 0], 0.8 / 4.0, rtol=1e-6)
+
+
+def test_reconstruct_sweep_flags(tmp_path, capsys):
+    f = tmp_path / "s.npz"
+    assert main(["scene", "spheres", "--size", "40x32", "--spp", "4", "-o", str(f)]) == 0
+    capsys.readouterr()
+    for flags, mode in ((["--scales", "4"], "4-scale"), (["--dof-layers"], "dof_layers"),
+                        (["--exponent", "1.3", "--sort", "pixel"], "2-scale")):
+        assert main(["reconstruct", str(f), "--method", "sweep", "-o", str(tmp_path / "o.exr"),
+                     "--json", *flags]) == 0
+        rep = json.loads(capsys.readouterr().out)
+        assert rep["mode"] == mode, flags
+    assert rep["exponent"] == 1.3 and rep["sort"] == "pixel"
+    assert main(["reconstruct", str(f), "-o", str(tmp_path / "o.exr"), "--scales", "4"]) == 2
+    assert "unknown knobs" in capsys.readouterr().err  # box takes no scales
