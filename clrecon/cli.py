@@ -124,11 +124,12 @@ def _quality(image, reference_path) -> dict:
 
 
 def cmd_reconstruct(args) -> int:
+    from .bench.methods import parse_value
     from .io import load_samples, save_image
     from .pipeline import run
 
     knobs = dict(kv.split("=", 1) for kv in args.knob or [])
-    knobs = {k: _parse_value(v) for k, v in knobs.items()}
+    knobs = {k: parse_value(v) for k, v in knobs.items()}
     for name in METHOD_FLAGS:  # method flags given on the command line become knobs
         value = getattr(args, name)
         if value is not None and value is not False:
@@ -157,15 +158,6 @@ def cmd_reconstruct(args) -> int:
 
 #: argparse destinations of ``reconstruct`` that are method knobs of the same name
 METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile")
-
-
-def _parse_value(v: str):
-    for cast in (int, float):
-        try:
-            return cast(v)
-        except ValueError:
-            pass
-    return {"true": True, "false": False}.get(v.lower(), v)
 
 
 def cmd_compare(args) -> int:

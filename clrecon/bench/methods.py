@@ -50,7 +50,8 @@ GAP = 2
 
 # -- variants ------------------------------------------------------------------------------
 
-def _value(text: str) -> int | float | bool | str:
+def parse_value(text: str) -> int | float | bool | str:
+    """A knob value from text: int, then float, then true/false (any case), else the text."""
     for cast in (int, float):
         try:
             return cast(text)
@@ -100,7 +101,7 @@ def parse_variant(text: str) -> Variant:
             raise ValueError(f"variant {text!r}: knob {item.strip()!r} is not NAME=VALUE")
         if name in knobs:
             raise ValueError(f"variant {text!r}: knob {name!r} given twice")
-        knobs[name] = _value(value.strip())
+        knobs[name] = parse_value(value.strip())
     return (label or text, method, knobs)
 
 
