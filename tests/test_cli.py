@@ -55,7 +55,9 @@ def test_demo_writes_images(tmp_path, capsys):
                  str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "PSNR" in out and "M samples/s" in out
-    for name in ("spheres_reference.png", "spheres_box.png", "spheres_box.exr"):
+    assert "box" in out and "sweep" in out
+    for name in ("spheres_reference.png", "spheres_box.png", "spheres_box.exr",
+                 "spheres_sweep.png"):
         assert (tmp_path / name).is_file()
 
 
