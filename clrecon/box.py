@@ -34,10 +34,21 @@ class BoxPipeline(Pipeline):
 
     def __init__(self, context, info, local: LocalSize | None = None):
         super().__init__(context, info)
+        self.tuning = {}
+        if local is None:
+            from .tune.runtime import tuned
+            from .tune.specs import local_size_of
+
+            found = tuned(context, "box", info)
+            local = local_size_of(found.config)
+            self.tuning["box"] = found.source
+        else:
+            self.tuning["box"] = "api"
         self.box = Box(context, local)
 
     def describe(self) -> dict:
-        return {"method": "box", "local_size": [self.box.local.x, self.box.local.y]}
+        return {"method": "box", "local_size": [self.box.local.x, self.box.local.y],
+                "tuning": self.tuning}
 
     def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
         ev = self.box(queue, samples["color"], out, samples.width, samples.height, samples.spp,

@@ -247,6 +247,39 @@ def cmd_table(args) -> int:
     return 0
 
 
+def cmd_tune(args) -> int:
+    from .tune.session import tune_device
+
+    bars = {}
+
+    def progress(name, done, total):
+        if name not in bars:
+            for b in bars.values():
+                b.close()
+            bars[name] = _Bar(f"tune {name}", unit="config")
+        bars[name](done, total)
+
+    try:
+        results = tune_device(args.device, args.passes, args.size, args.spp, args.budget,
+                              args.runs, args.root, progress)
+    finally:
+        for b in bars.values():
+            b.close()
+    print("| pass | bucket | default | default ms | best | best ms | speed-up | configs ok / "
+          "pruned / failed |")
+    print("|---|---|---|---|---|---|---|---|")
+    for res, _ in results:
+        st = [m.status for m in res.measurements]
+        failed = sum(s in ("build_error", "run_error", "verify_failed") for s in st)
+        speed = (res.default_median_ms / res.best_median_ms
+                 if res.best_median_ms and res.default_median_ms else float("nan"))
+        print(f"| {res.pass_name} | {res.bucket} | {json.dumps(res.default)} | "
+              f"{res.default_median_ms:.2f} | {json.dumps(res.best)} | {res.best_median_ms:.2f} | "
+              f"{speed:.2f}x | {st.count('ok')} / {st.count('pruned')} / {failed} |")
+    print(f"written: {', '.join(sorted({p for _, p in results}))}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="clrecon", description=__doc__.splitlines()[0])
     p.add_argument("-v", "--verbose", action="store_true", help="log what the library decides")
@@ -311,6 +344,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("-o", "--output", default="out")
     dev(sp)
     sp.set_defaults(fn=cmd_demo)
+
+    sp = sub.add_parser("tune", help="autotune every pass's launch configuration on a device")
+    sp.add_argument("--passes", nargs="*", default=None, help="default: every tunable pass")
+    sp.add_argument("--budget", type=float, default=600.0, help="seconds for all passes")
+    sp.add_argument("--size", type=_size, default=(640, 360), help="tuned frame size WxH")
+    sp.add_argument("--spp", type=int, default=16)
+    sp.add_argument("--runs", type=int, default=7, help="timed runs per configuration (>= 7)")
+    sp.add_argument("--root", default=None, help="database folder (default: the package's)")
+    dev(sp)
+    sp.set_defaults(fn=cmd_tune)
 
     sp = sub.add_parser("report", help="generator throughput, reference convergence, box quality")
     sp.add_argument("--scenes", nargs="*", default=None)

@@ -180,13 +180,17 @@ def get_device(spec: DeviceSpec = None) -> Device:
     return _devices[index]
 
 
+def describe(dev: cl.Device) -> DeviceInfo:
+    """:class:`DeviceInfo` of any ``cl.Device`` (index -1 if it is not in the list)."""
+    for i, d in enumerate(_all_devices()):
+        if d.int_ptr == dev.int_ptr:
+            return _info(i, d)
+    return _info(-1, dev)
+
+
 def from_queue(queue: cl.CommandQueue) -> DeviceInfo:
     """Describe the device of a caller's queue (for embedding in a foreign pipeline)."""
-    devices = _all_devices()
-    for i, d in enumerate(devices):
-        if d.int_ptr == queue.device.int_ptr:
-            return _info(i, d)
-    return _info(-1, queue.device)
+    return describe(queue.device)
 
 
 # -- program building ----------------------------------------------------------------------

@@ -16,9 +16,10 @@ from __future__ import annotations
 import pyopencl as cl
 
 from ..pipeline import DeviceSamples, Pipeline, register
+from ..tune.runtime import tuned
+from ..tune.specs import DEFAULTS, local_size_of, make_resolve
 from .layers import SweepLayerResolve, SweepLayerSums
 from .prepare import SweepPrepare
-from .resolve import SweepResolve
 
 
 @register
@@ -27,8 +28,8 @@ class SweepPipeline(Pipeline):
 
     def __init__(self, context, info, scales: int = 2, dof_layers: bool = False,
                  exponent: float = 1.0, smooth_motion: bool | None = None,
-                 diameter_scale: float = 1.0, sort: str = "tile", tile: int = 4,
-                 tile_merge: str = "auto"):
+                 diameter_scale: float = 1.0, sort: str | None = None, tile: int | None = None,
+                 tile_merge: str | None = None):
         super().__init__(context, info)
         if not diameter_scale >= 0:
             raise ValueError(f"diameter_scale: must be >= 0, got {diameter_scale}")
@@ -38,21 +39,38 @@ class SweepPipeline(Pipeline):
         spp = info.spp
         npix = info.width * info.height
         rw = cl.mem_flags.READ_WRITE
+        self.tuning: dict[str, str] = {}
+
+        def local(pass_name):
+            found = tuned(context, pass_name, info)
+            self.tuning[pass_name] = found.source
+            return local_size_of(found.config)
+
         if self.dof_layers:
             self.fields = ("color", "depth")
-            self.sums_pass = SweepLayerSums(context, spp)
-            self.combine = SweepLayerResolve(context, spp)
+            self.sums_pass = SweepLayerSums(context, spp, local("sweep_layer_sums"))
+            self.combine = SweepLayerResolve(context, spp, local("sweep_layer_resolve"))
             self.sums = cl.Buffer(context, rw, npix * 3 * 16)
         else:
             self.fields = ("color", "position", "depth", "motion")
-            self.prepare = SweepPrepare(context, spp, self.smooth_motion)
-            self.resolve = SweepResolve(context, spp, self.scales, exponent, sort, tile,
-                                        tile_merge)
+            self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
+            given = {k: v for k, v in (("sort", sort), ("tile", tile), ("tile_merge", tile_merge))
+                     if v is not None}
+            if given:  # the caller's knobs win over tuning; the rest from the pass default
+                config = {"sort": "tile", "tile": 4, "tile_merge": "auto"} | given
+                if config["sort"] == "pixel":
+                    config = {"sort": "pixel", "wg_x": 16, "wg_y": 4}
+                self.tuning["sweep_resolve"] = "api"
+            else:
+                found = tuned(context, "sweep_resolve", info)
+                config = found.config or DEFAULTS["sweep_resolve"]
+                self.tuning["sweep_resolve"] = found.source
+            self.resolve = make_resolve(context, spp, self.scales, exponent, config)
             self.keys = cl.Buffer(context, rw, npix * spp * 16)
             self.colors = cl.Buffer(context, rw, npix * spp * 16)
 
     def describe(self) -> dict:
-        d = {"method": "sweep", "diameter_scale": self.diameter_scale}
+        d = {"method": "sweep", "diameter_scale": self.diameter_scale, "tuning": self.tuning}
         if self.dof_layers:
             return d | {"mode": "dof_layers", "smooth_motion": False}
         return d | {"mode": f"{self.scales}-scale", "scales": self.scales,

@@ -1,0 +1,36 @@
+"""Autotuning of the OpenCL passes: the search (:mod:`.tuner`) and the database (:mod:`.db`).
+
+Both modules are pure logic (no OpenCL import): the search talks to a :class:`Runner`, the
+database reads and writes JSON files under ``tuning/<runtime>/<device>.json``.
+"""
+from .db import (
+    SCHEMA_VERSION,
+    Lookup,
+    bucket_for,
+    clear_cache,
+    db_path,
+    entry_key,
+    env_var,
+    load,
+    lookup,
+    save_result,
+    slug,
+)
+from .tuner import (
+    MIN_RUNS,
+    STATUSES,
+    Config,
+    Measurement,
+    Runner,
+    TuneResult,
+    config_key,
+    config_sort_key,
+    tune,
+)
+
+__all__ = [
+    "SCHEMA_VERSION", "Lookup", "bucket_for", "clear_cache", "db_path", "entry_key", "env_var",
+    "load", "lookup", "save_result", "slug",
+    "MIN_RUNS", "STATUSES", "Config", "Measurement", "Runner", "TuneResult", "config_key",
+    "config_sort_key", "tune",
+]

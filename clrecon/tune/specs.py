@@ -1,0 +1,197 @@
+"""Tuning specs: for each pass its tunables, candidate configurations, default and a runner
+that builds and launches the real pass on a synthetic frame of the tuned size.
+
+A configuration is a dict of the pass's tunables, or ``None`` for "runtime chooses" (local
+size left to the OpenCL runtime). Adding a pass to the tuner means adding one spec here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import pyopencl as cl
+
+from ..camera import CocModel
+from ..device import Device
+from ..pipeline import DeviceSamples, LocalSize
+from ..samples import SampleBuffer
+
+LOCAL_SIZES = [(1, 1), (4, 4), (8, 8), (16, 4), (16, 8), (32, 4), (32, 8), (64, 1), (16, 16)]
+
+
+def local_candidates() -> list[dict | None]:
+    return [{"wg_x": x, "wg_y": y} for x, y in LOCAL_SIZES] + [None]
+
+
+def local_size_of(config: dict | None) -> LocalSize:
+    """The :class:`LocalSize` a local-size configuration stands for."""
+    if config is None:
+        return LocalSize(None)
+    return LocalSize(int(config["wg_x"]), int(config["wg_y"]))
+
+
+def synthetic_frame(width: int, height: int, spp: int, seed: int = 0) -> SampleBuffer:
+    """A valid frame with defocus (CoC -7..7 px), some motion and misses: every branch of
+    every pass runs, and the data do not depend on the scene generator."""
+    rng = np.random.default_rng(seed)
+    buf = SampleBuffer.zeros(height, width, spp, CocModel.from_focus(8.0, 4.0))
+    buf.position[:] += rng.uniform(-0.5, 0.499, buf.position.shape)
+    buf.depth[:] = rng.uniform(2.2, 40.0, buf.depth.shape)
+    buf.depth[rng.uniform(size=buf.depth.shape) < 0.05] = np.inf
+    r = np.sqrt(rng.uniform(0, 1, buf.depth.shape))
+    a = rng.uniform(0, 2 * np.pi, buf.depth.shape)
+    buf.lens[:] = np.stack([r * np.cos(a), r * np.sin(a)], -1)
+    buf.time[:] = rng.uniform(0, 1, buf.time.shape)
+    buf.color[:] = rng.exponential(1.0, buf.color.shape)
+    moving = rng.uniform(size=buf.depth.shape) < 0.3
+    buf.motion[:] = np.where(moving[..., None], rng.normal(0, 4.0, buf.motion.shape), 0.0)
+    return buf
+
+
+class PassRunner:
+    """Builds a pass object for a configuration and launches it on fixed device inputs."""
+
+    def __init__(self, device: Device, make: Callable, launch: Callable, out_shape: tuple,
+                 group_size: Callable[[dict | None], int | None]):
+        self.device, self.make, self.launch = device, make, launch
+        self.out_shape, self.group_size = out_shape, group_size
+        self.out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE,
+                             int(np.prod(out_shape)) * 4)
+
+    def build(self, config):
+        return self.make(config)
+
+    def local_size(self, config) -> int | None:
+        return self.group_size(config)
+
+    def max_work_group_size(self, handle) -> int | None:
+        return int(handle.kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
+                                                     self.device.device))
+
+    def run(self, handle):
+        q = self.device.queue
+        ev = self.launch(handle, q, self.out)
+        ev.wait()
+        host = np.empty(self.out_shape, np.float32)
+        cl.enqueue_copy(q, host, self.out)
+        return host, (ev.profile.end - ev.profile.start) * 1e-6
+
+
+@dataclass(frozen=True)
+class PassSpec:
+    """How to tune one pass."""
+
+    name: str
+    kernel_file: str
+    default: dict | None
+    candidates: Callable[[], list]
+    runner: Callable[[Device, int, int, int], PassRunner]
+    rtol: float = 1e-5
+    atol: float = 1e-6
+
+
+def _wg(config):
+    return None if config is None else int(config["wg_x"]) * int(config["wg_y"])
+
+
+def _box_runner(dev, w, h, spp):
+    from ..box import Box
+
+    buf = synthetic_frame(w, h, spp)
+    s = DeviceSamples.upload(dev.queue, buf, ("color",))
+    return PassRunner(dev, lambda c: Box(dev.context, local_size_of(c)),
+                      lambda p, q, out: p(q, s["color"], out, w, h, spp), (h, w, 3), _wg)
+
+
+def _prepare_runner(dev, w, h, spp):
+    from ..sweep.prepare import SweepPrepare
+
+    s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp))
+    colors = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * spp * 16)
+    return PassRunner(dev, lambda c: SweepPrepare(dev.context, spp, True, local_size_of(c)),
+                      lambda p, q, out: p(q, s, 1.0, out, colors), (h, w, spp, 4), _wg)
+
+
+def _sweep_inputs(dev, w, h, spp):
+    from ..sweep.prepare import SweepPrepare
+
+    s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp))
+    rw = cl.mem_flags.READ_WRITE
+    keys = cl.Buffer(dev.context, rw, w * h * spp * 16)
+    colors = cl.Buffer(dev.context, rw, w * h * spp * 16)
+    SweepPrepare(dev.context, spp, True)(dev.queue, s, 1.0, keys, colors).wait()
+    return keys, colors
+
+
+def resolve_candidates() -> list:
+    tiles = [{"sort": "tile", "tile": t, "tile_merge": m} for t in (2, 4, 8)
+             for m in ("serial", "bitonic")]
+    pixels = [{"sort": "pixel", "wg_x": x, "wg_y": y} for x, y in ((8, 8), (16, 4), (32, 2))]
+    return tiles + pixels
+
+
+def resolve_group(config):
+    if config is None:
+        return None
+    if config["sort"] == "tile":
+        return int(config["tile"]) ** 2
+    return int(config["wg_x"]) * int(config["wg_y"])
+
+
+def make_resolve(context, spp: int, scales: int, exponent: float, config: dict):
+    """A :class:`SweepResolve` for a tuning configuration."""
+    from ..sweep.resolve import SORTS, SweepResolve
+
+    sort = config.get("sort")
+    if sort not in SORTS:
+        raise ValueError(f"sort: must be one of {SORTS}, got {sort!r}")
+    if sort == "tile":
+        return SweepResolve(context, spp, scales, exponent, "tile", config["tile"],
+                            config["tile_merge"])
+    return SweepResolve(context, spp, scales, exponent, "pixel",
+                        local=LocalSize(int(config["wg_x"]), int(config["wg_y"])))
+
+
+def _resolve_runner(dev, w, h, spp):
+    keys, colors = _sweep_inputs(dev, w, h, spp)
+    return PassRunner(dev, lambda c: make_resolve(dev.context, spp, 2, 1.0, c),
+                      lambda p, q, out: p(q, keys, colors, w, h, out), (h, w, 3), resolve_group)
+
+
+def _layer_sums_runner(dev, w, h, spp):
+    from ..sweep.layers import SweepLayerSums
+
+    s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp), ("color", "depth"))
+    return PassRunner(dev, lambda c: SweepLayerSums(dev.context, spp, local_size_of(c)),
+                      lambda p, q, out: p(q, s, 1.0, out), (h, w, 3, 4), _wg)
+
+
+def _layer_resolve_runner(dev, w, h, spp):
+    from ..sweep.layers import SweepLayerResolve, SweepLayerSums
+
+    s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp), ("color", "depth"))
+    sums = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * 3 * 16)
+    SweepLayerSums(dev.context, spp)(dev.queue, s, 1.0, sums).wait()
+    return PassRunner(dev, lambda c: SweepLayerResolve(dev.context, spp, local_size_of(c)),
+                      lambda p, q, out: p(q, sums, w, h, out), (h, w, 3), _wg)
+
+
+DEFAULT_LOCAL = {"wg_x": 16, "wg_y": 4}
+
+SPECS: dict[str, PassSpec] = {s.name: s for s in (
+    PassSpec("box", "box", DEFAULT_LOCAL, local_candidates, _box_runner),
+    PassSpec("sweep_prepare", "sweep_prepare", DEFAULT_LOCAL, local_candidates, _prepare_runner),
+    # float sums in a different order per configuration: relative tolerance
+    # "auto": the serial merge on CPUs, the bitonic network on GPUs
+    PassSpec("sweep_resolve", "sweep_resolve", {"sort": "tile", "tile": 4,
+                                                "tile_merge": "auto"},
+             resolve_candidates, _resolve_runner, rtol=1e-4, atol=1e-5),
+    PassSpec("sweep_layer_sums", "sweep_layer_sums", DEFAULT_LOCAL, local_candidates,
+             _layer_sums_runner),
+    PassSpec("sweep_layer_resolve", "sweep_layer_resolve", DEFAULT_LOCAL, local_candidates,
+             _layer_resolve_runner),
+)}
+
+#: the configuration every pass uses when no tuning entry applies (lookup level "default")
+DEFAULTS: dict[str, dict | None] = {name: spec.default for name, spec in SPECS.items()}
