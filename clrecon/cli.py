@@ -247,6 +247,37 @@ def cmd_table(args) -> int:
     return 0
 
 
+def _device_list(text: str):
+    """``all`` or comma-separated device indices / name substrings."""
+    if text.strip().lower() == "all":
+        return "all"
+    specs = [int(v) if v.isdigit() else v for v in (t.strip() for t in text.split(",")) if v]
+    if not specs:
+        raise argparse.ArgumentTypeError(f"expected 'all' or D[,D...], got {text!r}")
+    return specs
+
+
+def cmd_bench(args) -> int:
+    from .bench.devices import bench, compare, write_outputs
+
+    old = None
+    if args.compare:  # read first: a bad baseline fails before the measurements
+        old = json.loads(Path(args.compare).read_text())
+    bar = _Bar("bench", unit="step")
+    try:
+        res = bench(args.devices, variants=args.variant, size=args.size, spp=args.spp,
+                    repeats=args.repeats, progress=bar, scene=args.scene)
+    finally:
+        bar.close()
+    write_outputs(res, json_path=args.json, csv_path=args.csv)
+    print(res["markdown"])
+    if old is not None:
+        print(f"Change against {args.compare}:")
+        print()
+        print(compare(res, old))
+    return 0
+
+
 def cmd_tune(args) -> int:
     from .tune.session import tune_device
 
@@ -377,6 +408,24 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("-o", "--output", default="out/methods")
     dev(sp)
     sp.set_defaults(fn=cmd_table)
+
+    sp = sub.add_parser("bench", help="per-pass device times on every device, tuned vs default")
+    sp.add_argument("--devices", type=_device_list, default="all", metavar="all|D,...",
+                    help="comma-separated device indices or name substrings (default: all)")
+    sp.add_argument("--variant", action="append", type=_variant, default=None,
+                    metavar="SPEC",
+                    help="[LABEL=]METHOD[:K=V,...] (repeatable; default: box, sweep 2-scale, "
+                         "sweep dof-layers)")
+    sp.add_argument("--scene", default=None,
+                    help="built-in scene to render as input (default: a synthetic frame)")
+    sp.add_argument("--size", type=_size, default=(1280, 720), help="WxH (default 1280x720)")
+    sp.add_argument("--spp", type=int, default=16)
+    sp.add_argument("--repeats", type=int, default=7, help="paired timed runs after a warm-up")
+    sp.add_argument("--json", default=None, metavar="F", help="write the result as JSON")
+    sp.add_argument("--csv", default=None, metavar="F", help="write the long rows as CSV")
+    sp.add_argument("--compare", default=None, metavar="OLD.json",
+                    help="print the change against an earlier --json result")
+    sp.set_defaults(fn=cmd_bench)
     return p
 
 
