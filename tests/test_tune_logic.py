@@ -163,7 +163,7 @@ def test_full_space_records_failures_as_data_and_goes_on():
 
 def test_exactly_runs_timed_launches_after_one_warmup():
     runner = ReplayRunner()
-    res = tune("p", "s-lo", WG_SPACE, DEFAULT, runner, runs=9, device_max_wg=512)
+    res = tune("p", "s-lo", WG_SPACE, DEFAULT, runner, runs=9, device_max_wg=512, confirm=0)
     m = by_config(res)
     for cfg in (DEFAULT, RUNTIME, OUTLIER, STEADY, NEAR_DEFAULT):
         k = config_key(cfg)
@@ -216,7 +216,7 @@ def test_budget_skips_the_rest_but_always_measures_the_default():
     clock = FakeClock()
     runner = ReplayRunner(clock, tick_s=1.0)  # every launch takes 1 s of wall time
     res = tune("p", "s-lo", [STEADY, OUTLIER, NEAR_DEFAULT], DEFAULT, runner,
-               budget_s=10.0, clock=clock)
+               budget_s=10.0, clock=clock, confirm=0)
     # default: 8 launches -> t = 8 <= 10, STEADY starts -> t = 16 > 10: the rest skipped
     assert [m.status for m in res.measurements] == ["ok", "ok", "skipped_budget",
                                                     "skipped_budget"]
@@ -443,3 +443,32 @@ def test_bucket_for():
     for args in ((0, 10, 4), (10, -1, 4), (10, 10, 0), (2.5, 10, 4), (True, 10, 4)):
         with pytest.raises(ValueError):
             bucket_for(*args)
+
+
+def _paired_runner(later_ms: float) -> ReplayRunner:
+    """Default steady at 10 ms; the candidate times 9 ms in its 7 timed runs, then
+    ``later_ms`` in every launch after them (the paired confirmation)."""
+    runner = ReplayRunner()
+    fast = {"wg_x": 2, "wg_y": 2}
+    runner.configs[config_key(DEFAULT)] = {"local_size": 64, "warmup_ms": 10.0,
+                                           "times_ms": [10.0], "output": "ref"}
+    runner.configs[config_key(fast)] = {"local_size": 4, "warmup_ms": 9.0,
+                                        "times_ms": [9.0] * 7 + [later_ms] * 14,
+                                        "output": "ref"}
+    return runner, fast
+
+
+def test_paired_confirmation_keeps_a_real_gain():
+    runner, fast = _paired_runner(later_ms=9.0)
+    res = tune("p", "s-lo", [fast], DEFAULT, runner)
+    assert res.best == fast and res.confirm_ratio == pytest.approx(10.0 / 9.0)
+
+
+def test_paired_confirmation_rejects_a_gain_that_was_drift():
+    """Measured one after another the candidate looked 10% faster; launched alternately
+    with the default it is slower: the default stays."""
+    runner, fast = _paired_runner(later_ms=11.0)
+    res = tune("p", "s-lo", [fast], DEFAULT, runner)
+    assert res.best == DEFAULT and res.best_median_ms == res.default_median_ms
+    assert res.confirm_ratio == pytest.approx(10.0 / 11.0)
+    assert tune("p", "s-lo", [fast], DEFAULT, _paired_runner(11.0)[0], confirm=0).best == fast

@@ -342,6 +342,7 @@ def _entry(result: TuneResult, source_hash: str, build_options: list[str]) -> di
         "default": None if result.default is None else dict(result.default),
         "best": None if result.best is None else dict(result.best),
         "best_median_ms": _finite(result.best_median_ms),
+        "confirm_ratio": _finite(result.confirm_ratio),
         "default_median_ms": _finite(result.default_median_ms),
         "tuned_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "measurements": measurements,

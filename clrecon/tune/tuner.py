@@ -103,6 +103,8 @@ class TuneResult:
     default_median_ms: float | None
     measurements: list[Measurement]
     elapsed_s: float
+    #: median over paired runs of default ms / winner ms (None: no confirmation was run)
+    confirm_ratio: float | None = None
 
     @property
     def speedup(self) -> float | None:
@@ -244,6 +246,7 @@ def tune(
     rtol: float = 1e-5,
     atol: float = 1e-6,
     tie: float = 0.02,
+    confirm: int = 7,
     device_max_wg: int | None = None,
     clock: Callable[[], float] = time.perf_counter,
     progress: Callable[[int, int], None] | None = None,
@@ -271,6 +274,10 @@ def tune(
     tie : float, optional
         Medians within this fraction of the fastest are ties; the default wins a tie, else the
         smallest configuration by :func:`config_sort_key`.
+    confirm : int, optional
+        Paired runs confirming a winner other than the default: default and winner are
+        launched alternately this many times, and the winner is kept only if the median of
+        the per-pair ratios default/winner exceeds ``1 + tie`` (``0``: no confirmation).
     device_max_wg : int, optional
         The device's maximum work-group size; larger local sizes are pruned before building.
     clock : callable, optional
@@ -341,6 +348,11 @@ def tune(
 
     best = _choose(measurements, default, tie)
     assert best is not None  # the default is always "ok" here
+    ratio = None
+    if confirm > 0 and config_key(best.config) != default_key:
+        ratio = _paired_ratio(runner, default, best.config, confirm)
+        if ratio is None or ratio < 1.0 + tie:
+            best = first  # the gain did not survive paired runs: keep the default
     return TuneResult(
         pass_name=pass_name,
         bucket=bucket,
@@ -350,4 +362,29 @@ def tune(
         default_median_ms=first.median_ms,
         measurements=measurements,
         elapsed_s=float(clock() - start),
+        confirm_ratio=ratio,
     )
+
+
+def _paired_ratio(runner: Runner, default: Config, winner: Config, pairs: int) -> float | None:
+    """Median of default/winner device-time ratios over ``pairs`` alternating launches.
+
+    Candidates are measured one after another, so slow drift of a shared machine can favour
+    whichever ran in a quiet moment; paired launches see the same conditions. ``None`` if a
+    launch fails."""
+    try:
+        hd, hw = runner.build(default), runner.build(winner)
+        ratios = []
+        for i in range(pairs):
+            if i % 2:
+                _, tw = runner.run(hw)
+                _, td = runner.run(hd)
+            else:
+                _, td = runner.run(hd)
+                _, tw = runner.run(hw)
+            if not (tw > 0 and math.isfinite(tw) and math.isfinite(td)):
+                return None
+            ratios.append(float(td) / float(tw))
+    except Exception:
+        return None
+    return float(statistics.median(ratios))
