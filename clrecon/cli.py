@@ -296,17 +296,18 @@ def cmd_tune(args) -> int:
     finally:
         for b in bars.values():
             b.close()
-    print("| pass | bucket | default | default ms | best | best ms | speed-up | configs ok / "
-          "pruned / failed |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| pass | bucket | default | default ms | best | best ms | speed-up | paired "
+          "default/best | configs ok / pruned / failed |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for res, _ in results:
         st = [m.status for m in res.measurements]
         failed = sum(s in ("build_error", "run_error", "verify_failed") for s in st)
+        paired = "-" if res.confirm_ratio is None else f"{res.confirm_ratio:.2f}x"
         speed = (res.default_median_ms / res.best_median_ms
                  if res.best_median_ms and res.default_median_ms else float("nan"))
         print(f"| {res.pass_name} | {res.bucket} | {json.dumps(res.default)} | "
               f"{res.default_median_ms:.2f} | {json.dumps(res.best)} | {res.best_median_ms:.2f} | "
-              f"{speed:.2f}x | {st.count('ok')} / {st.count('pruned')} / {failed} |")
+              f"{speed:.2f}x | {paired} | {st.count('ok')} / {st.count('pruned')} / {failed} |")
     print(f"written: {', '.join(sorted({p for _, p in results}))}")
     return 0
 
