@@ -265,7 +265,8 @@ def cmd_bench(args) -> int:
         old = json.loads(Path(args.compare).read_text())
     bar = _Bar("bench", unit="step")
     try:
-        res = bench(args.devices, variants=args.variant, size=args.size, spp=args.spp,
+        variants = (args.variant or []) + [(m, m, {}) for m in args.methods or []]
+        res = bench(args.devices, variants=variants or None, size=args.size, spp=args.spp,
                     repeats=args.repeats, progress=bar, scene=args.scene)
     finally:
         bar.close()
@@ -417,6 +418,8 @@ def build_parser() -> argparse.ArgumentParser:
                     metavar="SPEC",
                     help="[LABEL=]METHOD[:K=V,...] (repeatable; default: box, sweep 2-scale, "
                          "sweep dof-layers)")
+    sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
+                    metavar="M,...", help="methods with their default knobs (adds to --variant)")
     sp.add_argument("--scene", default=None,
                     help="built-in scene to render as input (default: a synthetic frame)")
     sp.add_argument("--size", type=_size, default=(1280, 720), help="WxH (default 1280x720)")

@@ -126,3 +126,13 @@ def test_forced_default_restores_env(monkeypatch):
         assert _value(rows, config="default", metric="ratio_default_over_tuned",
                       **{"pass": name}) > 0
     assert "| env |" in res["markdown"]
+
+
+def test_cli_methods_option(tmp_path, capsys):
+    from clrecon.cli import main
+
+    out = tmp_path / "m.json"
+    assert main(["bench", "--devices", "0", "--size", "16x16", "--spp", "2", "--repeats", "3",
+                 "--methods", "box,sweep", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert {r["method"] for r in rows} == {"box", "sweep"}
