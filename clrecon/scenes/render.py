@@ -21,6 +21,16 @@ CHUNK_SAMPLES = 1 << 22
 REFERENCE_CHUNK = 32
 
 
+def _local_size(context: cl.Context, width: int, height: int, spp: int):
+    """The tuned local size of pass ``raytrace`` (see clrecon.tune) for this frame shape."""
+    from ..samples import FrameInfo
+    from ..tune.runtime import tuned
+    from ..tune.specs import local_size_of
+
+    info = FrameInfo(width, height, spp, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return local_size_of(tuned(context, "raytrace", info).config)
+
+
 def _check_size(width: int, height: int, spp: int) -> None:
     for name, v in (("width", width), ("height", height), ("spp", spp)):
         if not isinstance(v, (int, np.integer)) or v < 1:
@@ -58,13 +68,14 @@ def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 
              for k, a in host.items()}
     kernel = get_kernel(ctx, "raytrace", "raytrace_samples")
     rows = max(1, CHUNK_SAMPLES // (width * spp))
-    gx = -(-width // 8) * 8
+    local = _local_size(ctx, width, height, spp)
     for row0 in range(0, height, rows):
         count = min(rows, height - row0)
         kernel.set_args(*objs, np.int32(width), np.int32(height), np.int32(spp),
                         np.int32(row0), np.uint32(seed & 0xFFFFFFFF), *camera, light, bg,
                         *(dbufs[k] for k in host))
-        cl.enqueue_nd_range_kernel(q, kernel, (gx, -(-count // 8) * 8), (8, 8))
+        gsize, lsize = local.for_range(width, count)
+        cl.enqueue_nd_range_kernel(q, kernel, gsize, lsize)
         if progress is not None:
             q.finish()
             progress((row0 + count) * width * spp, n)
@@ -92,12 +103,12 @@ def render_reference(scene: Scene, width: int, height: int, spp: int | None = No
     dout = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=width * height * 12)
     acc = np.zeros((height, width, 3), np.float64)
     part = np.empty((height, width, 3), np.float32)
-    gsize = (-(-width // 8) * 8, -(-height // 8) * 8)
+    gsize, lsize = _local_size(ctx, width, height, spp).for_range(width, height)
     for first in range(0, spp, REFERENCE_CHUNK):
         count = min(REFERENCE_CHUNK, spp - first)
         kernel.set_args(*objs, np.int32(width), np.int32(height), np.uint32(first),
                         np.uint32(count), np.uint32(seed & 0xFFFFFFFF), *camera, light, bg, dout)
-        cl.enqueue_nd_range_kernel(q, kernel, gsize, (8, 8))
+        cl.enqueue_nd_range_kernel(q, kernel, gsize, lsize)
         cl.enqueue_copy(q, part, dout)
         acc += part.astype(np.float64) * count
         if progress is not None:

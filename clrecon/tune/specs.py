@@ -177,9 +177,37 @@ def _layer_resolve_runner(dev, w, h, spp):
                       lambda p, q, out: p(q, sums, w, h, out), (h, w, 3), _wg)
 
 
+def _raytrace_runner(dev, w, h, spp):
+    from ..scenes import get_scene
+    from ..scenes import render as rt
+
+    scene = get_scene("deep")
+    cam, objs, camera, light, bg = rt._common_args(scene, w, h, dev.context)
+    n = w * h * spp
+    wo = cl.mem_flags.WRITE_ONLY
+    fields = [cl.Buffer(dev.context, wo, n * 4 * k) for k in (3, 2, 1, 2, 1, 2)]
+
+    class Launch:
+        def __init__(self, config):
+            self.local = local_size_of(config)
+            self.kernel = cl.Kernel(rt.get_kernel(dev.context, "raytrace", "raytrace_samples")
+                                    .get_info(cl.kernel_info.PROGRAM), "raytrace_samples")
+
+    def launch(p, q, out):
+        # colour is the checked output; the other fields are written alongside
+        p.kernel.set_args(*objs, np.int32(w), np.int32(h), np.int32(spp), np.int32(0),
+                          np.uint32(0), *camera, light, bg, out, *fields[1:])
+        g, loc = p.local.for_range(w, h)
+        return cl.enqueue_nd_range_kernel(q, p.kernel, g, loc)
+
+    return PassRunner(dev, Launch, launch, (h, w, spp, 3), _wg)
+
+
 DEFAULT_LOCAL = {"wg_x": 16, "wg_y": 4}
 
 SPECS: dict[str, PassSpec] = {s.name: s for s in (
+    # the scene generator's kernel: the same search, default the 8x8 it was written for
+    PassSpec("raytrace", "raytrace", {"wg_x": 8, "wg_y": 8}, local_candidates, _raytrace_runner),
     PassSpec("box", "box", DEFAULT_LOCAL, local_candidates, _box_runner),
     PassSpec("sweep_prepare", "sweep_prepare", DEFAULT_LOCAL, local_candidates, _prepare_runner),
     # float sums in a different order per configuration: relative tolerance
