@@ -208,19 +208,33 @@ def build_options(defines: Defines | None = None) -> list[str]:
     return opts
 
 
+_file_cache: dict[Path, tuple[int, bytes]] = {}
+
+
+def _read(path: Path) -> bytes:
+    """File bytes, re-read only when the modification time changes (builds look sources up
+    on every pass construction; an edited kernel is still seen)."""
+    mtime = path.stat().st_mtime_ns
+    hit = _file_cache.get(path)
+    if hit is None or hit[0] != mtime:
+        hit = (mtime, path.read_bytes())
+        _file_cache[path] = hit
+    return hit[1]
+
+
 def kernel_source(name: str) -> str:
     """Text of ``kernels/<name>.cl`` (``name`` with or without the extension)."""
     path = kernels_dir() / (name if name.endswith(".cl") else f"{name}.cl")
     if not path.is_file():
         raise FileNotFoundError(f"kernel file {path} not found")
-    return path.read_text()
+    return _read(path).decode()
 
 
 def _headers_digest() -> str:
     h = hashlib.sha256()
     for p in sorted(kernels_dir().glob("*.h")):
         h.update(p.name.encode())
-        h.update(p.read_bytes())
+        h.update(_read(p))
     return h.hexdigest()
 
 
