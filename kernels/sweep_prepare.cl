@@ -6,6 +6,10 @@
  * and writes the samples sorted by depth (stable: equal depths keep sample order) as
  *   keys   float4 (H, W, SPP): (x, y, depth, D)
  *   colors float4 (H, W, SPP): (r, g, b, 0)
+ * Positions are clamped into their own pixel [px, px+1) (validation allows a hair outside,
+ * and a sample on the right or bottom edge belongs to its pixel): with sweep_resolve's
+ * half-open boxes [-r, r) every sample then falls in its own pixel's 1x1 block, so no pixel
+ * is left without weight (a 1 spp frame whose samples sit on pixel corners gave 0/0).
  * Inputs are the SoA sample fields: color (H,W,S,3), position (H,W,S,2), depth (H,W,S),
  * motion (H,W,S,2). coc(w) = c0 / w + c1 (inf depth gives c1).
  * Compile-time: SPP (samples per pixel, <= 256), SMOOTH_MOTION (0/1).
@@ -43,7 +47,10 @@ __kernel void sweep_prepare(__global const float *color, __global const float *p
 #if SMOOTH_MOTION
         d = fmax(d, length(vload2(base + i, motion)));
 #endif
-        k[i] = (float4)(vload2(base + i, position), z, dscale * d);
+        const float2 p = vload2(base + i, position);
+        const float x = clamp(p.x, (float)px, nextafter((float)(px + 1), 0.0f));
+        const float y = clamp(p.y, (float)py, nextafter((float)(py + 1), 0.0f));
+        k[i] = (float4)(x, y, z, dscale * d);
         /* insertion sort of indices by depth; strict > keeps equal depths in order */
         int j = i;
         while (j > 0 && k[order[j - 1]].z > z) {

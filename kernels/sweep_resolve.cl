@@ -66,7 +66,9 @@ typedef struct {
     float3 sum;
 } sweep_state;
 
-inline float box(float x, float radius) { return fabs(x) < radius ? 0.5f / radius : 0.0f; }
+/* half-open [-r, r): with positions clamped into [px, px+1) (sweep_prepare) a sample is in
+ * exactly the blocks whose pixels it belongs to */
+inline float box(float x, float radius) { return (x >= -radius && x < radius) ? 0.5f / radius : 0.0f; }
 
 /* One step of the sweep for a sample at offset (x, y) from the pixel centre. */
 inline void sweep_step(sweep_state *st, float x, float y, float d, float3 c)

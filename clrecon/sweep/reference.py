@@ -3,7 +3,10 @@ paper's Algorithm 2 and Appendices A and B literally; the kernels are tested aga
 
 Conventions shared with the kernels (and not fixed by the paper):
 
-* ``x_i - x_c``: the sample's sensor ``position`` minus the pixel centre.
+* ``x_i - x_c``: the sample's sensor ``position``, clamped into its own pixel ``[p, p + 1)``,
+  minus the pixel centre; the boxes are half-open, ``[-r, r)``. So every sample lies in exactly
+  the blocks its pixel belongs to, and no pixel's 1x1 block is empty (a sample on a pixel
+  corner, which validation accepts, would otherwise count for no pixel: 0/0 at 1 spp).
 * The window of a pixel holds every sample of the ``(2R+1)^2`` pixels around it that lie in
   the image (R = 2 for two scales, 3 for four); pixels outside contribute nothing.
 * Front-to-back order sorts on depth; ties (e.g. misses at ``inf``) keep window order: window
@@ -37,7 +40,7 @@ def denoising_diameter(buf: SampleBuffer, smooth_motion: bool = True,
 
 
 def _box(x, radius):
-    return np.where(np.abs(x) < radius, 0.5 / radius, 0.0)
+    return np.where((x >= -radius) & (x < radius), 0.5 / radius, 0.0)
 
 
 def _gather(buf: SampleBuffer, radius: int, diameter: np.ndarray):
@@ -45,9 +48,16 @@ def _gather(buf: SampleBuffer, radius: int, diameter: np.ndarray):
     h, w, s = buf.shape
     k = 2 * radius + 1
     pad = [(radius, radius), (radius, radius), (0, 0)]
+    ys, xs = np.mgrid[0:h, 0:w]
+    def own(pos, lo):  # clamp into [lo, lo + 1) in float32, as the kernel does
+        hi = np.nextafter((lo + 1).astype(np.float32), np.float32(0))
+        return np.clip(pos, lo.astype(np.float32), hi)
+
+    px = own(buf.position[..., 0], xs[..., None])
+    py = own(buf.position[..., 1], ys[..., None])
     fields = {
-        "x": np.pad(buf.position[..., 0].astype(np.float64), pad),
-        "y": np.pad(buf.position[..., 1].astype(np.float64), pad),
+        "x": np.pad(px.astype(np.float64), pad),
+        "y": np.pad(py.astype(np.float64), pad),
         "z": np.pad(buf.depth.astype(np.float64), pad, constant_values=np.inf),
         "d": np.pad(diameter, pad),
         "valid": np.pad(np.ones((h, w, s), bool), pad),
@@ -61,7 +71,6 @@ def _gather(buf: SampleBuffer, radius: int, diameter: np.ndarray):
         out[name] = np.concatenate(parts, axis=-1)  # window row-major, then sample
     order = np.argsort(out["z"], axis=-1, kind="stable")
     out = {n: np.take_along_axis(a, order, -1) for n, a in out.items()}
-    ys, xs = np.mgrid[0:h, 0:w]
     out["dx"] = out["x"] - (xs[..., None] + 0.5)
     out["dy"] = out["y"] - (ys[..., None] + 0.5)
     return out
