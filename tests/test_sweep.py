@@ -142,3 +142,24 @@ def test_describe_reports_mode_and_knobs(device, rng):
     res = clrecon.run(frame(rng), "sweep", device, dof_layers=True)
     assert res.method["mode"] == "dof_layers"
     assert set(res.pass_ms) == {"sweep_layer_sums", "sweep_layer_resolve"}
+
+
+@pytest.mark.parametrize("knobs", [dict(scales=2), dict(scales=4), dict(dof_layers=True)],
+                         ids=["2-scale", "4-scale", "dof-layers"])
+@pytest.mark.parametrize("coc", [0.0, 0.45, 1.4], ids=lambda c: f"coc{c}")
+def test_box_equivalent_specialization(device, rng, knobs, coc):
+    """With every denoising diameter inside the narrow block the plan is the box pass; the
+    full sweep (specialize=False) gives the same image, and a wider frame is not specialized."""
+    buf = frame(rng, motion=False, ties=False)
+    buf.depth[:] = 4.0  # the focus depth of frame(): coc 0 ...
+    if coc:  # ... or a CoC of `coc` px everywhere
+        buf.depth[:] = buf.coc_model.depth_at_coc(coc)
+    buf.lens[:] = 0.0
+    buf.validate()
+    res = clrecon.run(buf, "sweep", device, **knobs)
+    narrow = 3.0 if knobs.get("scales") == 4 else 1.0
+    expect_box = 2 * coc <= narrow
+    assert res.method["box_equivalent"] is expect_box
+    assert (set(res.pass_ms) == {"box"}) is expect_box
+    full = clrecon.reconstruct(buf, "sweep", device, specialize=False, **knobs)
+    assert_close(res.image, full, rtol=1e-5, atol=1e-6, what="specialized vs full sweep")

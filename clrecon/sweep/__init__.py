@@ -10,11 +10,18 @@ Plans (knobs in brackets):
 
 ``diameter_scale`` scales the denoising diameter ``max(2|coc|, |motion|)``;
 ``smooth_motion`` (default: whether the frame has motion) adds the motion term.
+
+Model only what the frame requires: when no sample's denoising diameter exceeds the smallest
+block (1 px for two scales and the three layers, 3 px for four scales: ``max_diameter`` from
+the frame inspection), every sample falls in the narrow scale, and Appendix A/B's weights
+reduce exactly to the per-pixel average, so the plan is the one ``box`` pass
+(``specialize=False`` keeps the full sweep; the tests check both agree).
 """
 from __future__ import annotations
 
 import pyopencl as cl
 
+from ..box import BoxPipeline
 from ..pipeline import DeviceSamples, Pipeline, register
 from ..tune.runtime import tuned
 from ..tune.specs import DEFAULTS, local_size_of, make_resolve
@@ -29,13 +36,24 @@ class SweepPipeline(Pipeline):
     def __init__(self, context, info, scales: int = 2, dof_layers: bool = False,
                  exponent: float = 1.0, smooth_motion: bool | None = None,
                  diameter_scale: float = 1.0, sort: str | None = None, tile: int | None = None,
-                 tile_merge: str | None = None):
+                 tile_merge: str | None = None, specialize: bool = True):
         super().__init__(context, info)
         if not diameter_scale >= 0:
             raise ValueError(f"diameter_scale: must be >= 0, got {diameter_scale}")
+        if scales not in (2, 4):
+            raise ValueError(f"scales: must be 2 or 4, got {scales!r}")
         self.scales, self.dof_layers, self.exponent = int(scales), bool(dof_layers), exponent
         self.smooth_motion = info.has_motion if smooth_motion is None else bool(smooth_motion)
         self.diameter_scale = float(diameter_scale)
+        motion = info.max_abs_motion if self.smooth_motion and not self.dof_layers else 0.0
+        self.max_diameter = self.diameter_scale * max(2.0 * info.max_abs_coc, motion)
+        narrow = 3.0 if self.scales == 4 and not self.dof_layers else 1.0
+        self.box_equivalent = bool(specialize) and self.max_diameter <= narrow
+        if self.box_equivalent:
+            self.fields = BoxPipeline.fields
+            self.inner = BoxPipeline(context, info)
+            self.tuning = self.inner.tuning
+            return
         spp = info.spp
         npix = info.width * info.height
         rw = cl.mem_flags.READ_WRITE
@@ -70,7 +88,12 @@ class SweepPipeline(Pipeline):
             self.colors = cl.Buffer(context, rw, npix * spp * 16)
 
     def describe(self) -> dict:
-        d = {"method": "sweep", "diameter_scale": self.diameter_scale, "tuning": self.tuning}
+        d = {"method": "sweep", "diameter_scale": self.diameter_scale, "tuning": self.tuning,
+             "max_diameter_px": round(self.max_diameter, 3),
+             "box_equivalent": self.box_equivalent}
+        if self.box_equivalent:
+            return d | {"mode": "box (every denoising diameter within the narrow block)",
+                        "requested": "dof_layers" if self.dof_layers else f"{self.scales}-scale"}
         if self.dof_layers:
             return d | {"mode": "dof_layers", "smooth_motion": False}
         return d | {"mode": f"{self.scales}-scale", "scales": self.scales,
@@ -80,6 +103,11 @@ class SweepPipeline(Pipeline):
 
     def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
         w, h = samples.width, samples.height
+        if self.box_equivalent:
+            self.inner.events = []
+            ev = self.inner.enqueue(queue, samples, out, wait_for)
+            self.events = self.inner.events
+            return ev
         if self.dof_layers:
             ev = self.sums_pass(queue, samples, self.diameter_scale, self.sums, wait_for)
             self.events.append(("sweep_layer_sums", ev))
