@@ -3,7 +3,8 @@
 Subcommands: ``devices``, ``scene``, ``reference``, ``reconstruct``, ``compare``, ``demo``
 (the quick start's main job) and ``report`` (generator throughput, reference convergence
 and box-filter quality of the built-in scenes); ``table`` compares the device time and
-quality of reconstruction variants side by side.
+quality of reconstruction variants side by side; ``trade`` measures every method's
+speed/accuracy knobs against ``box`` and Open Image Denoise.
 """
 from __future__ import annotations
 
@@ -257,6 +258,21 @@ def _device_list(text: str):
     return specs
 
 
+def cmd_trade(args) -> int:
+    from .bench.trade import trade
+
+    bar = _Bar("trade", unit="step")
+    try:
+        rep = trade(args.scenes, args.methods, spps=args.spp, size=args.size,
+                    repeats=args.repeats, oidn=not args.no_oidn, device=args.device,
+                    out_dir=args.output, ref_spp=args.ref_spp, progress=bar)
+    finally:
+        bar.close()
+    print(rep["markdown"])
+    print(f"written: {args.output}/trade.md, trade.json, <scene>_pareto.png, <scene>_crops.png")
+    return 0
+
+
 def cmd_bench(args) -> int:
     from .bench.devices import bench, compare, write_outputs
 
@@ -410,6 +426,21 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("-o", "--output", default="out/methods")
     dev(sp)
     sp.set_defaults(fn=cmd_table)
+
+    sp = sub.add_parser("trade", help="speed/accuracy trade of every method's knobs, with box "
+                        "and Open Image Denoise, Pareto plots and crops")
+    sp.add_argument("--scenes", type=lambda t: [s for s in t.split(",") if s], default=None,
+                    metavar="S,...", help="built-in scenes (default: all)")
+    sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
+                    metavar="M,...", help="methods (default: all registered; box always runs)")
+    sp.add_argument("--spp", type=_int_list, default=[4, 8, 16], metavar="N,...")
+    sp.add_argument("--size", type=_size, default=(512, 512), help="WxH (default 512x512)")
+    sp.add_argument("--repeats", type=int, default=5, help="paired rounds after a warm-up")
+    sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
+    sp.add_argument("--no-oidn", action="store_true", help="leave out Open Image Denoise")
+    sp.add_argument("-o", "--output", default="out/trade")
+    dev(sp)
+    sp.set_defaults(fn=cmd_trade)
 
     sp = sub.add_parser("bench", help="per-pass device times on every device, tuned vs default")
     sp.add_argument("--devices", type=_device_list, default="all", metavar="all|D,...",

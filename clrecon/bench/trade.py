@@ -1,0 +1,418 @@
+"""The speed/accuracy trade (``clrecon trade``): every method at every knob setting that trades
+time for quality, beside ``box`` and Intel Open Image Denoise, on the built-in scenes.
+
+Per scene one converged reference (seed 1; cached as EXR under ``references/`` of the output
+directory) and per spp one sample buffer (seed ``100 + spp``) are rendered. Every variant's
+pipeline is built and its samples uploaded once, and it is warmed up. Then the variants run
+**paired**: ``repeats`` rounds, each round running every variant once in a rotated order, so
+that the host's noise hits all of them alike. A variant's time is the median over rounds of
+its summed per-pass device times (OpenCL profiling events; on a CPU device these are wall
+times of the kernels), and ``x_box`` is the median over rounds of its time divided by the
+box filter's time in the same round.
+
+The OIDN baseline is what a user would otherwise run: the box-filtered image denoised by
+``pyoidn.denoise(box, hdr=True, quality=...)`` on the CPU. Its time is the box pass plus the
+denoiser's wall time (host arrays in and out, as a user would call it).
+
+Quality is PSNR, SSIM and FLIP of the last round's image against the reference
+(:mod:`clrecon.metrics`). Per scene and spp the Pareto front in (time, PSNR) is marked.
+
+Outputs: ``trade.md``, ``trade.json``, ``{scene}_pareto.png`` (time vs PSNR, the fronts
+drawn) and ``{scene}_crops.png`` (the same crop of the reference, box, OIDN and the best
+setting of each method, at the middle spp, centred where the box filter errs most).
+"""
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyopencl as cl
+
+from ..device import Device, DeviceSpec, get_device
+from ..io import load_image, save_image, tonemap_srgb
+from ..metrics import evaluate
+from ..pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline
+from ..scenes import SCENES, get_scene, render_reference, render_samples
+from .methods import CROP, Progress, _check_variants, hardest_region
+
+#: per method, the settings that trade speed for accuracy (label, knobs); a method that is
+#: not registered is skipped, a knob a method does not take is an error
+TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
+    "box": (("box", {}),),
+    "sweep": (
+        ("sweep dof-layers", {"dof_layers": True}),
+        ("sweep 2-scale", {"scales": 2}),
+        ("sweep 2-scale ^1.3", {"scales": 2, "exponent": 1.3}),
+        ("sweep 4-scale", {"scales": 4}),
+    ),
+    "layered": (
+        ("layered sheared", {"filter": "sheared"}),
+        ("layered mip", {"filter": "mip"}),
+        ("layered lrdm", {"mode": "lrdm"}),
+        ("layered full stats", {"stats_stride": 1}),
+        ("layered no merging", {"merge_threshold": 0.0}),
+        ("layered merge 0.3", {"merge_threshold": 0.3}),
+        ("layered tile 16", {"tile": 16}),
+        ("layered tile 64", {"tile": 64}),
+    ),
+    "splat": (
+        ("splat", {}),
+        ("splat f7", {"pyramid": "f7"}),
+        ("splat 4 layers", {"layers": 4}),
+        ("splat dense", {"dense": True}),
+    ),
+}
+
+#: the external baseline: pyoidn quality modes
+OIDN_QUALITIES = ("fast", "high")
+
+
+def trade_variants(methods: Sequence[str] | None = None) -> list[tuple[str, str, dict]]:
+    """The (label, method, knobs) settings of :data:`TRADES` for ``methods`` (default: every
+    registered method). ``box`` is always included: every ratio is taken against it."""
+    _load_methods()
+    methods = [m for m in TRADES if m in METHODS] if methods is None else list(methods)
+    for m in methods:
+        if m not in METHODS:
+            raise ValueError(f"methods: unknown {m!r}; available: {sorted(METHODS)}")
+        if m not in TRADES:
+            raise ValueError(f"methods: {m!r} has no trade settings in clrecon.bench.trade")
+    if "box" not in methods:
+        methods = ["box", *methods]
+    return _check_variants([(lab, m, k) for m in methods for lab, k in TRADES[m]])
+
+
+def pareto_front(points: Sequence[tuple[float, float]]) -> list[bool]:
+    """Which ``(time, quality)`` points no other point dominates (no slower, no worse, and
+    better in one); NaN quality is never on the front."""
+    flags = []
+    for i, (t, q) in enumerate(points):
+        if not np.isfinite(q):
+            flags.append(False)
+            continue
+        dominated = any(
+            j != i and np.isfinite(q2) and t2 <= t and q2 >= q and (t2 < t or q2 > q)
+            for j, (t2, q2) in enumerate(points))
+        flags.append(not dominated)
+    return flags
+
+
+def _reference(scene, w, h, spp, dev, cache: Path) -> np.ndarray:
+    path = cache / f"{scene.name}_{w}x{h}_{spp}spp_seed1.exr"
+    if path.exists():
+        return load_image(path)
+    ref = render_reference(scene, w, h, spp, seed=1, device=dev)
+    cache.mkdir(parents=True, exist_ok=True)
+    save_image(path, ref)
+    return ref
+
+
+class _Runner:
+    """One variant, built and uploaded once: ``run()`` -> ms of one paired round."""
+
+    def __init__(self, dev: Device, buf, method: str, knobs: dict):
+        self.dev = dev
+        self.pipe = make_pipeline(method, dev.context, buf.inspect(), **knobs)
+        self.samples = DeviceSamples.upload(dev.queue, buf, self.pipe.fields)
+        self.out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE,
+                             size=buf.height * buf.width * 12)
+        self.shape = (buf.height, buf.width, 3)
+        self.pass_ms: dict[str, list[float]] = {}
+
+    def describe(self) -> dict:
+        return self.pipe.describe()
+
+    def run(self) -> float:
+        self.pipe(self.dev.queue, self.samples, self.out).wait()
+        times = self.pipe.pass_times_ms()
+        for k, v in times.items():
+            self.pass_ms.setdefault(k, []).append(v)
+        return float(sum(times.values()))
+
+    def image(self) -> np.ndarray:
+        img = np.empty(self.shape, np.float32)
+        cl.enqueue_copy(self.dev.queue, img, self.out)
+        return img
+
+
+class _Oidn:
+    """The box image denoised by Open Image Denoise on the CPU; ``run()`` -> wall ms."""
+
+    def __init__(self, dev: Device, buf, quality: str):
+        import pyoidn
+
+        self.pyoidn, self.quality = pyoidn, quality
+        self.box = _Runner(dev, buf, "box", {})
+        self.pass_ms: dict[str, list[float]] = {}
+        self.result = None
+
+    def describe(self) -> dict:
+        return {"method": "oidn", "mode": f"box + OIDN {self.quality} (CPU, hdr)",
+                "pyoidn": _version("pyoidn")}
+
+    def run(self) -> float:
+        box_ms = self.box.run()
+        t0 = time.perf_counter()
+        self.result = self.pyoidn.denoise(self.box.image(), hdr=True, quality=self.quality)
+        oidn_ms = (time.perf_counter() - t0) * 1e3
+        self.pass_ms.setdefault("box", []).append(box_ms)
+        self.pass_ms.setdefault("oidn", []).append(oidn_ms)
+        return box_ms + oidn_ms
+
+    def image(self) -> np.ndarray:
+        return np.asarray(self.result, np.float32)
+
+
+def _version(dist: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return "?"
+
+
+def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = None,
+          spps: Sequence[int] = (4, 8, 16), size: tuple[int, int] = (512, 512),
+          repeats: int = 5, oidn: bool = True, device: DeviceSpec | Device = None,
+          out_dir: str | Path = "out/trade", ref_spp: int | None = None,
+          progress: Progress = None) -> dict:
+    """Measure the speed/accuracy trade; write ``trade.md``, ``trade.json`` and the pictures.
+
+    Parameters
+    ----------
+    scenes : sequence of str, optional
+        Built-in scene names (default: all).
+    methods : sequence of str, optional
+        Methods whose :data:`TRADES` settings run (default: every registered one; ``box``
+        always runs).
+    spps : sequence of int
+        Samples per pixel of the reconstructed buffers.
+    size : tuple of int
+        ``(width, height)``.
+    repeats : int
+        Paired rounds after one warm-up run of every variant.
+    oidn : bool
+        Include the Open Image Denoise baselines (needs ``pyoidn``).
+    device : int, str, Device or None
+        See :func:`clrecon.device.get_device`.
+    out_dir : str or Path
+        Created; receives the outputs and the reference cache ``references/``.
+    ref_spp : int, optional
+        Reference samples per pixel (default: each scene's).
+    progress : callable, optional
+        ``progress(done, total)`` after each reference, buffer and measured (scene, spp).
+
+    Returns
+    -------
+    dict
+        ``device``, ``size``, ``spps``, ``repeats``, ``rows`` (one per scene, spp and variant:
+        ``scene``, ``spp``, ``variant``, ``method``, ``knobs``, ``describe``, ``ms``,
+        ``x_box``, ``pass_ms``, ``psnr``, ``ssim``, ``flip``, ``pareto``), ``verdicts`` (per
+        scene and spp: the clrecon settings that beat each OIDN mode in both time and PSNR)
+        and ``markdown``.
+    """
+    scenes = list(SCENES if scenes is None else scenes)
+    if not scenes:
+        raise ValueError("scenes: need at least one")
+    scene_objs = {n: get_scene(n) for n in scenes}
+    spps = [int(s) for s in spps]
+    if not spps or min(spps) < 1:
+        raise ValueError(f"spps: need positive integers, got {spps}")
+    if not (isinstance(repeats, int) and repeats >= 1):
+        raise ValueError(f"repeats: must be a positive integer, got {repeats!r}")
+    variants = trade_variants(methods)
+    if oidn:
+        import pyoidn  # noqa: F401  (fail before any measurement when it is missing)
+    w, h = (int(v) for v in size)
+    dev = get_device(device)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    total, done = len(scenes) * (1 + 2 * len(spps)), 0
+
+    def step():
+        nonlocal done
+        done += 1
+        if progress:
+            progress(done, total)
+
+    rows, crops = [], {}
+    for name, scene in scene_objs.items():
+        ref = _reference(scene, w, h, ref_spp or scene.reference_spp, dev, out / "references")
+        step()
+        for spp in spps:
+            buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev).validate()
+            step()
+            got = _measure(dev, buf, variants, oidn, repeats)
+            group = []
+            for label, method, knobs, runner, ms, ratio in got:
+                image = runner.image()
+                q = evaluate(image, ref)
+                row = {"scene": name, "spp": spp, "variant": label, "method": method,
+                       "knobs": knobs,
+                       "describe": runner.describe(),
+                       "ms": ms, "x_box": ratio,
+                       "pass_ms": {k: statistics.median(v) for k, v in runner.pass_ms.items()},
+                       **q}
+                group.append((row, image))
+            for (row, _), front in zip(group, pareto_front([(r["ms"], r["psnr"])
+                                                            for r, _ in group])):
+                row["pareto"] = front
+            rows += [r for r, _ in group]
+            if spp == spps[len(spps) // 2]:
+                crops[name] = (ref, group)
+            step()
+        _save_crops(out / f"{name}_crops.png", name, *crops[name])
+    report = {"device": dev.info.label, "size": [w, h], "spps": spps, "repeats": repeats,
+              "rows": rows}
+    report["verdicts"] = _verdicts(rows)
+    report["markdown"] = _markdown(report)
+    (out / "trade.json").write_text(json.dumps(
+        {k: v for k, v in report.items() if k != "markdown"}, indent=2, default=str))
+    (out / "trade.md").write_text(report["markdown"])
+    for name in scene_objs:
+        _save_plot(out / f"{name}_pareto.png", name, [r for r in rows if r["scene"] == name])
+    return report
+
+
+def _measure(dev, buf, variants, oidn: bool, repeats: int):
+    """Build, warm up and run every variant in paired rounds: (label, method, knobs, runner,
+    median ms, median ratio to box)."""
+    entries = [(lab, m, k, _Runner(dev, buf, m, k)) for lab, m, k in variants]
+    box = next(r for lab, m, k, r in entries if m == "box" and not k)
+    if oidn:
+        entries += [(f"oidn {q}", "oidn", {"quality": q}, _Oidn(dev, buf, q))
+                    for q in OIDN_QUALITIES]
+    for entry in entries:
+        entry[3].run()  # warm-up: PoCL compiles work-group functions on the first launch
+        entry[3].pass_ms.clear()
+    times: list[list[float]] = [[] for _ in entries]
+    box_i = next(i for i, e in enumerate(entries) if e[3] is box)
+    for r in range(repeats):
+        order = list(range(len(entries)))
+        order = order[r % len(order):] + order[:r % len(order)]
+        for i in order:
+            times[i].append(entries[i][3].run())
+    box_times = times[box_i]
+    res = []
+    for (lab, m, k, runner), ts in zip(entries, times):
+        ratio = statistics.median(t / max(b, 1e-6) for t, b in zip(ts, box_times))
+        res.append((lab, m, k, runner, statistics.median(ts), ratio))
+    return res
+
+
+def _verdicts(rows: list[dict]) -> list[dict]:
+    """Per scene and spp and OIDN mode: the clrecon settings faster and better than it."""
+    out = []
+    keys = list(dict.fromkeys((r["scene"], r["spp"]) for r in rows))
+    for scene, spp in keys:
+        group = [r for r in rows if (r["scene"], r["spp"]) == (scene, spp)]
+        ours = [r for r in group if r["method"] not in ("oidn", "box")]
+        for o in (r for r in group if r["method"] == "oidn"):
+            wins = [r["variant"] for r in ours if r["ms"] < o["ms"] and r["psnr"] > o["psnr"]]
+            best = max(ours, key=lambda r: r["psnr"], default=None)
+            out.append({"scene": scene, "spp": spp, "oidn": o["variant"], "oidn_ms": o["ms"],
+                        "oidn_psnr": o["psnr"], "wins": wins,
+                        "best": None if best is None else best["variant"],
+                        "best_psnr": None if best is None else best["psnr"],
+                        "best_ms": None if best is None else best["ms"]})
+    return out
+
+
+def _markdown(rep: dict) -> str:
+    w, h = rep["size"]
+    lines = [f"Device: {rep['device']}; {w}x{h}; time: median of {rep['repeats']} paired rounds "
+             "(device ms from profiling events; OIDN: box pass + denoiser wall time on the "
+             "host CPU); x box: median per-round ratio to the box filter; quality against the "
+             "converged reference; **bold**: on the (time, PSNR) Pareto front of its scene and "
+             "spp.", ""]
+    for scene in dict.fromkeys(r["scene"] for r in rep["rows"]):
+        lines += [f"### {scene}", "", "| spp | setting | ms | x box | PSNR dB | SSIM | FLIP | "
+                  "mode |", "|---|---|---|---|---|---|---|---|"]
+        for r in (r for r in rep["rows"] if r["scene"] == scene):
+            label = f"**{r['variant']}**" if r["pareto"] else r["variant"]
+            mode = r["describe"].get("mode", "")
+            lines.append(f"| {r['spp']} | {label} | {r['ms']:.1f} | {r['x_box']:.1f} | "
+                         f"{r['psnr']:.2f} | {r['ssim']:.4f} | {r['flip']:.4f} | {mode} |")
+        lines.append("")
+    if rep["verdicts"]:
+        lines += ["### Against Open Image Denoise", "",
+                  "| scene | spp | OIDN | OIDN ms / dB | clrecon settings faster and better | "
+                  "best clrecon ms / dB |", "|---|---|---|---|---|---|"]
+        for v in rep["verdicts"]:
+            wins = ", ".join(v["wins"]) if v["wins"] else "none"
+            best = "-" if v["best"] is None else \
+                f"{v['best']}: {v['best_ms']:.1f} / {v['best_psnr']:.2f}"
+            lines.append(f"| {v['scene']} | {v['spp']} | {v['oidn']} | "
+                         f"{v['oidn_ms']:.1f} / {v['oidn_psnr']:.2f} | {wins} | {best} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save_plot(path: Path, scene: str, rows: list[dict]) -> None:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 5.5), dpi=110)
+    markers = {"box": "s", "oidn": "D", "sweep": "o", "layered": "^", "splat": "v"}
+    for k, spp in enumerate(dict.fromkeys(r["spp"] for r in rows)):
+        group = [r for r in rows if r["spp"] == spp]
+        colour = f"C{k}"
+        for r in group:
+            ax.scatter(r["ms"], r["psnr"], marker=markers.get(r["method"], "x"), color=colour,
+                       edgecolor="black" if r["pareto"] else "none", s=40, zorder=3)
+            ax.annotate(r["variant"], (r["ms"], r["psnr"]), fontsize=6, xytext=(3, 2),
+                        textcoords="offset points")
+        front = sorted((r["ms"], r["psnr"]) for r in group if r["pareto"])
+        if front:
+            xs, ys = zip(*front)
+            ax.step(xs, ys, where="post", color=colour, label=f"{spp} spp front", zorder=2)
+    ax.set_xscale("log")
+    ax.set_xlabel("time per frame, ms (log)")
+    ax.set_ylabel("PSNR dB vs converged reference")
+    ax.set_title(f"{scene}: speed vs accuracy (markers: s box, D OIDN, o sweep, ^ layered, "
+                 "v splat)", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _save_crops(path: Path, scene: str, ref: np.ndarray, group: list) -> None:
+    """Reference, box, OIDN, and the best-PSNR setting of each method, one crop each."""
+    plt = _plt()
+    best: dict[str, tuple[dict, np.ndarray]] = {}
+    for row, img in group:
+        key = row["variant"] if row["method"] in ("box", "oidn") else row["method"]
+        if key not in best or row["psnr"] > best[key][0]["psnr"]:
+            best[key] = (row, img)
+    box_img = next(img for row, img in group if row["method"] == "box")
+    y, x = hardest_region(np.abs(box_img - ref))
+    hh, ww = ref.shape[:2]
+    ch, cw = min(CROP, hh), min(CROP, ww)
+    y0, x0 = int(np.clip(y - ch // 2, 0, hh - ch)), int(np.clip(x - cw // 2, 0, ww - cw))
+    panels = [("reference", ref)] + [
+        (f"{row['variant']}\n{row['psnr']:.2f} dB, {row['ms']:.0f} ms", img)
+        for row, img in best.values()]
+    fig, axes = plt.subplots(1, len(panels), figsize=(2.2 * len(panels), 2.6), dpi=110)
+    for ax, (title, img) in zip(np.atleast_1d(axes), panels):
+        ax.imshow(tonemap_srgb(img[y0:y0 + ch, x0:x0 + cw]), interpolation="nearest")
+        ax.set_title(title, fontsize=7)
+        ax.axis("off")
+    fig.suptitle(f"{scene}, {group[0][0]['spp']} spp, crop at x={x0}, y={y0}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
