@@ -2,9 +2,16 @@
 
 Plans (knobs in brackets):
 
-* sorted sweep [``scales=2`` (Appendix A, 1x1/5x5 blended) or ``4`` (Appendix B)]:
-  ``sweep_prepare`` -> ``sweep_resolve`` [``sort="tile"|"pixel"``, ``tile``,
-  ``tile_merge="auto"|"serial"|"bitonic"``, ``exponent``];
+* sorted sweep [``scales=2`` (Appendix A, 1x1/5x5 blended) or ``4`` (Appendix B),
+  ``exponent``], by one of three plans, same image (``sort``):
+
+  - ``"block"`` (default on CPUs): ``sweep_block`` alone [``group``]: one work-item per 4x4
+    pixel block radix-sorts the block's window once and sweeps it in float16 lanes;
+  - ``"tile"`` (default elsewhere): ``sweep_prepare`` -> ``sweep_resolve`` [``tile``,
+    ``tile_merge="auto"|"serial"|"bitonic"``]: one sort per tile in local memory, then every
+    pixel walks the tile's list;
+  - ``"pixel"``: ``sweep_prepare`` -> ``sweep_resolve``: each pixel merges its window's
+    per-pixel sorted runs (the straightforward version, for comparison);
 * ``dof_layers=True``: the sort-free three-layer depth-of-field variant,
   ``sweep_layer_sums`` -> ``sweep_layer_resolve`` (defocus only: motion is not smoothed).
 
@@ -18,8 +25,16 @@ import pyopencl as cl
 from ..pipeline import DeviceSamples, Pipeline, register
 from ..tune.runtime import tuned
 from ..tune.specs import DEFAULTS, local_size_of, make_resolve
+from .block import SweepBlock, block_local_bytes
 from .layers import SweepLayerResolve, SweepLayerSums
 from .prepare import SweepPrepare
+
+
+def default_sort(context, scales: int, spp: int) -> str:
+    """``"block"`` on CPUs (measured fastest there) where it fits, ``"tile"`` elsewhere."""
+    dev = context.devices[0]
+    fits = spp <= 255 and block_local_bytes(scales, spp) <= dev.local_mem_size
+    return "block" if dev.type & cl.device_type.CPU and fits else "tile"
 
 
 @register
@@ -29,7 +44,7 @@ class SweepPipeline(Pipeline):
     def __init__(self, context, info, scales: int = 2, dof_layers: bool = False,
                  exponent: float = 1.0, smooth_motion: bool | None = None,
                  diameter_scale: float = 1.0, sort: str | None = None, tile: int | None = None,
-                 tile_merge: str | None = None):
+                 tile_merge: str | None = None, group: int | None = None):
         super().__init__(context, info)
         if not diameter_scale >= 0:
             raise ValueError(f"diameter_scale: must be >= 0, got {diameter_scale}")
@@ -40,6 +55,7 @@ class SweepPipeline(Pipeline):
         npix = info.width * info.height
         rw = cl.mem_flags.READ_WRITE
         self.tuning: dict[str, str] = {}
+        self.block = None
 
         def local(pass_name):
             found = tuned(context, pass_name, info)
@@ -51,31 +67,44 @@ class SweepPipeline(Pipeline):
             self.sums_pass = SweepLayerSums(context, spp, local("sweep_layer_sums"))
             self.combine = SweepLayerResolve(context, spp, local("sweep_layer_resolve"))
             self.sums = cl.Buffer(context, rw, npix * 3 * 16)
-        else:
-            self.fields = ("color", "position", "depth", "motion")
-            self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
-            given = {k: v for k, v in (("sort", sort), ("tile", tile), ("tile_merge", tile_merge))
-                     if v is not None}
-            if given:  # the caller's knobs win over tuning; the rest from the pass default
-                config = {"sort": "tile", "tile": 4, "tile_merge": "auto"} | given
-                if config["sort"] == "pixel":
-                    config = {"sort": "pixel", "wg_x": 16, "wg_y": 4}
-                self.tuning["sweep_resolve"] = "api"
+            return
+        self.fields = ("color", "position", "depth", "motion")
+        given = {k: v for k, v in (("sort", sort), ("tile", tile), ("tile_merge", tile_merge))
+                 if v is not None}
+        if given.get("sort", "tile" if given else default_sort(context, self.scales, spp)) \
+                == "block":
+            if group is None:
+                found = tuned(context, "sweep_block", info)
+                group = (found.config or DEFAULTS["sweep_block"])["group"]
+                self.tuning["sweep_block"] = found.source
             else:
-                found = tuned(context, "sweep_resolve", info)
-                config = found.config or DEFAULTS["sweep_resolve"]
-                self.tuning["sweep_resolve"] = found.source
-            self.resolve = make_resolve(context, spp, self.scales, exponent, config)
-            self.keys = cl.Buffer(context, rw, npix * spp * 16)
-            self.colors = cl.Buffer(context, rw, npix * spp * 16)
+                self.tuning["sweep_block"] = "api"
+            self.block = SweepBlock(context, spp, self.scales, exponent, self.smooth_motion,
+                                    group)
+            return
+        self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
+        if given:  # the caller's knobs win over tuning; the rest from the pass default
+            config = {"sort": "tile", "tile": 4, "tile_merge": "auto"} | given
+            if config["sort"] == "pixel":
+                config = {"sort": "pixel", "wg_x": 16, "wg_y": 4}
+            self.tuning["sweep_resolve"] = "api"
+        else:
+            found = tuned(context, "sweep_resolve", info)
+            config = found.config or DEFAULTS["sweep_resolve"]
+            self.tuning["sweep_resolve"] = found.source
+        self.resolve = make_resolve(context, spp, self.scales, exponent, config)
+        self.keys = cl.Buffer(context, rw, npix * spp * 16)
+        self.colors = cl.Buffer(context, rw, npix * spp * 16)
 
     def describe(self) -> dict:
         d = {"method": "sweep", "diameter_scale": self.diameter_scale, "tuning": self.tuning}
         if self.dof_layers:
             return d | {"mode": "dof_layers", "smooth_motion": False}
-        return d | {"mode": f"{self.scales}-scale", "scales": self.scales,
-                    "exponent": self.exponent, "smooth_motion": self.smooth_motion,
-                    "sort": self.resolve.sort, "tile": self.resolve.tile,
+        d |= {"mode": f"{self.scales}-scale", "scales": self.scales, "exponent": self.exponent,
+              "smooth_motion": self.smooth_motion}
+        if self.block is not None:
+            return d | {"sort": "block", "group": self.block.group}
+        return d | {"sort": self.resolve.sort, "tile": self.resolve.tile,
                     "tile_merge": self.resolve.tile_merge}
 
     def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
@@ -85,6 +114,10 @@ class SweepPipeline(Pipeline):
             self.events.append(("sweep_layer_sums", ev))
             ev = self.combine(queue, self.sums, w, h, out, [ev])
             self.events.append(("sweep_layer_resolve", ev))
+            return ev
+        if self.block is not None:
+            ev = self.block(queue, samples, self.diameter_scale, out, wait_for)
+            self.events.append(("sweep_block", ev))
             return ev
         ev = self.prepare(queue, samples, self.diameter_scale, self.keys, self.colors, wait_for)
         self.events.append(("sweep_prepare", ev))
