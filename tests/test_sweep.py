@@ -135,9 +135,27 @@ def test_in_focus_static_frame_is_the_box_filter(device, rng):
     buf = frame(rng, motion=False)
     buf.depth[:] = 4.0  # everything in focus: D = 0, only the 1x1 scale
     box = buf.color.astype(np.float64).mean(axis=2)
-    for knobs in (dict(scales=2), dict(scales=4), dict(dof_layers=True)):
+    for knobs in (dict(scales=2), dict(scales=4), dict(dof_layers=True),
+                  dict(scales=2, sort="block"), dict(scales=4, sort="tile")):
         assert_close(clrecon.reconstruct(buf, "sweep", device, **knobs), box, rtol=1e-5,
                      what=f"in focus {knobs}")
+
+
+@pytest.mark.parametrize("scales,coc_diameter,plan", [
+    (2, 0.9, "box"), (2, 1.6, "sweep"), (4, 2.9, "box"), (4, 3.5, "sweep")])
+def test_default_plan_is_the_box_filter_when_only_1x1_can_weigh(device, rng, scales,
+                                                                  coc_diameter, plan):
+    """'Model only what a scene requires': diameters <= 1 (<= 3 for four scales) leave
+    every weight at 1/spp on the pixel's own samples; the plan is then the box pass, and
+    the image is still the reference's."""
+    buf = frame(rng, motion=False, ties=False)
+    coc = buf.coc_model.coc(buf.depth)
+    buf.depth[:] = np.where(np.abs(coc) > coc_diameter / 2, 4.0, buf.depth)  # clip to |coc|
+    res = clrecon.run(buf, "sweep", device, scales=scales)
+    assert ("plan" in res.method) == (plan == "box")
+    assert (set(res.pass_ms) == {"box"}) == (plan == "box")
+    want = ref.reconstruct(buf, scales=scales)
+    assert_close(res.image, want, rtol=2e-4, atol=2e-5, what=f"{scales} {coc_diameter}")
 
 
 def test_flat_field_energy_and_finite(device, rng):

@@ -16,12 +16,16 @@ Plans (knobs in brackets):
   ``sweep_layer_sums`` -> ``sweep_layer_resolve`` (defocus only: motion is not smoothed).
 
 ``diameter_scale`` scales the denoising diameter ``max(2|coc|, |motion|)``;
-``smooth_motion`` (default: whether the frame has motion) adds the motion term.
+``smooth_motion`` (default: whether the frame has motion) adds the motion term. When the frame
+inspection says every diameter is at most 1 px (two scales) or 3 px (four), only the 1x1
+scale can get weight and the default plan is the ``box`` pass (same image for positions
+inside their pixels; an explicit ``sort``/``tile``/``tile_merge``/``group`` runs the sweep).
 """
 from __future__ import annotations
 
 import pyopencl as cl
 
+from ..box import Box
 from ..pipeline import DeviceSamples, Pipeline, register
 from ..tune.runtime import tuned
 from ..tune.specs import DEFAULTS, local_size_of, make_resolve
@@ -55,7 +59,7 @@ class SweepPipeline(Pipeline):
         npix = info.width * info.height
         rw = cl.mem_flags.READ_WRITE
         self.tuning: dict[str, str] = {}
-        self.block = None
+        self.block = self.box = None
 
         def local(pass_name):
             found = tuned(context, pass_name, info)
@@ -69,6 +73,15 @@ class SweepPipeline(Pipeline):
             self.sums = cl.Buffer(context, rw, npix * 3 * 16)
             return
         self.fields = ("color", "position", "depth", "motion")
+        # every sample's diameter at most 1 (two scales) or 3 (four): only the 1x1 box ever
+        # gets weight, every weight is 1/spp, and the sweep is the box filter
+        max_d = self.diameter_scale * max(2.0 * info.max_abs_coc,
+                                          info.max_abs_motion if self.smooth_motion else 0.0)
+        if sort is None and tile is None and tile_merge is None and group is None \
+                and max_d <= (1.0 if self.scales == 2 else 3.0):
+            self.fields = ("color",)
+            self.box = Box(context, local("box"))
+            return
         given = {k: v for k, v in (("sort", sort), ("tile", tile), ("tile_merge", tile_merge))
                  if v is not None}
         if given.get("sort", "tile" if given else default_sort(context, self.scales, spp)) \
@@ -102,6 +115,9 @@ class SweepPipeline(Pipeline):
             return d | {"mode": "dof_layers", "smooth_motion": False}
         d |= {"mode": f"{self.scales}-scale", "scales": self.scales, "exponent": self.exponent,
               "smooth_motion": self.smooth_motion}
+        if self.box is not None:
+            return d | {"sort": None, "plan": "box (every denoising diameter <= "
+                        f"{1 if self.scales == 2 else 3} px: only the 1x1 scale)"}
         if self.block is not None:
             return d | {"sort": "block", "group": self.block.group}
         return d | {"sort": self.resolve.sort, "tile": self.resolve.tile,
@@ -114,6 +130,10 @@ class SweepPipeline(Pipeline):
             self.events.append(("sweep_layer_sums", ev))
             ev = self.combine(queue, self.sums, w, h, out, [ev])
             self.events.append(("sweep_layer_resolve", ev))
+            return ev
+        if self.box is not None:
+            ev = self.box(queue, samples["color"], out, w, h, samples.spp, wait_for)
+            self.events.append(("box", ev))
             return ev
         if self.block is not None:
             ev = self.block(queue, samples, self.diameter_scale, out, wait_for)
