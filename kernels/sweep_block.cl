@@ -4,23 +4,23 @@
  *
  * sweep_block: one work-item per 4x4 block of pixels (blocks row-major over the image,
  *   1D range of ceil(W/4) * ceil(H/4) rounded up to GROUP). It
- *   1. lists the samples of the block's window ((4 + 2R)^2 pixels, R = 2 or 3, those in the
+ *   1. reads the samples of the block's window ((4 + 2R)^2 pixels, R = 2 or 3, those in the
  *      image) in window order: rows, columns, sample index, which is the reference's tie
- *      order (clrecon/sweep/reference.py);
- *   2. sorts the list by depth with a stable radix sort in local memory, once for all 16
- *      pixels (not once per pixel);
+ *      order (clrecon/sweep/reference.py), into local records (x, y, D, r, g, b);
+ *   2. sorts their (depth, record index) entries with a stable radix sort in local memory,
+ *      once for all 16 pixels (not once per pixel);
  *   3. sweeps the sorted list once with the 16 pixels in float16 lanes: each sample's
- *      position, diameter and colour are read once and shared by the lanes, and lanes whose
- *      window does not hold the sample get zero weight (the box filters of Appendix A/B,
- *      plus an explicit window mask for positions on a pixel edge).
+ *      record is read once and shared by the lanes, and lanes whose window does not hold
+ *      the sample get zero weight (the box filters of Appendix A/B, plus an explicit window
+ *      mask for positions on a pixel edge).
  *   Per sample: D = dscale * max(2 |coc(w)|, |motion|) (motion term only with SMOOTH_MOTION),
- *   coc(w) = c0 / w + c1, computed exactly as sweep_prepare does.
+ *   coc(w) = c0 / w + c1, computed as sweep_prepare does.
  * Inputs: SoA sample fields color (H,W,S,3), position (H,W,S,2), depth (H,W,S) (> 0 or inf),
  *   motion (H,W,S,2). Output: out (H, W, 3) float32.
  * Compile-time: SPP (<= 255), SCALES (2 or 4), SMOOTH_MOTION (0/1), EXPONENT and
  *   EXPONENT_ON (the paper's 1.3 variant: weights raised to EXPONENT).
  * Tunables: GROUP (work-items per group; blocks are independent: no barriers, each item
- *   has its own 2 * (4 + 2R)^2 * SPP * 8 bytes of local memory).
+ *   has its own (4 + 2R)^2 * SPP * 48 bytes of local memory).
  */
 #include "common.h"
 
@@ -164,22 +164,33 @@ void sweep_block(__global const float *color, __global const float *position,
                  const float dscale, __global float *out)
 {
     __local ulong lsort[GROUP][2][BN];
+    __local float8 lrec[GROUP][BN];
     const int lid = get_local_id(0);
     const int blocks_x = (width + BS - 1) / BS;
     const int block = get_global_id(0);
     if (block >= blocks_x * ((height + BS - 1) / BS))
         return;
     const int x0 = (block % blocks_x) * BS - R, y0 = (block / blocks_x) * BS - R;
-    /* payload: t | s << 8 (window pixel t = ty * BW + tx, sample s); gbase[t]: the pixel's
-     * first sample in the buffer */
-    int gbase[BW * BW];
+    /* In window order (the reference's tie order), each sample's record (x, y, D, r, g, b)
+     * in lrec, read in order from the buffer; its sort entry: depth bits << 32 | the
+     * record's index | window pixel t = ty * BW + tx << 16 */
     int n = 0;
     for (int ty = max(0, -y0); ty < min(BW, height - y0); ++ty) {
         for (int tx = max(0, -x0); tx < min(BW, width - x0); ++tx) {
             const int t = ty * BW + tx, base = pixel_index(x0 + tx, y0 + ty, width) * SPP;
-            gbase[t] = base;
-            for (int s = 0; s < SPP; ++s)
-                lsort[lid][0][n++] = ((ulong)as_uint(depth[base + s]) << 32) | (uint)(t | s << 8);
+            for (int s = 0; s < SPP; ++s, ++n) {
+                const int g = base + s;
+                const float z = depth[g];
+                float d = 2.0f * fabs(c0 / z + c1);
+#if SMOOTH_MOTION
+                const float2 m = vload2(g, motion);
+                d = max(d, sqrt(fma(m.x, m.x, m.y * m.y)));
+#endif
+                const float2 pos = vload2(g, position);
+                const float3 c = vload3(g, color);
+                lrec[lid][n] = (float8)(pos.x, pos.y, dscale * d, c.x, c.y, c.z, 0.0f, 0.0f);
+                lsort[lid][0][n] = ((ulong)as_uint(z) << 32) | (uint)(n | t << 16);
+            }
         }
     }
     __local const ulong *sorted = sweep_block_sort(lsort[lid][0], lsort[lid][1], n);
@@ -200,17 +211,11 @@ void sweep_block(__global const float *color, __global const float *position,
     st.cov_1 = st.cov_3 = st.cov_5 = st.cov_7 = st.cov = (float16)(0.0f);
     st.r = st.g = st.b = (float16)(0.0f);
     for (int p = 0; p < n; ++p) {
-        const ulong e = sorted[p];
-        const float z = as_float((uint)(e >> 32));
-        const int t = (int)e & 255, g = gbase[t] + (((int)e >> 8) & 255);
-        float d = 2.0f * fabs(c0 / z + c1);
-#if SMOOTH_MOTION
-        const float2 m = vload2(g, motion);
-        d = fmax(d, sqrt(fma(m.x, m.x, m.y * m.y)));
-#endif
-        const float2 pos = vload2(g, position);
-        sweep_block_step(&st, fmax(fabs(pos.x - cx), farx[t % BW]),
-                         fmax(fabs(pos.y - cy), fary[t / BW]), dscale * d, vload3(g, color));
+        const uint e = (uint)sorted[p];
+        const int t = e >> 16;
+        const float8 k = lrec[lid][e & 0xFFFF];
+        sweep_block_step(&st, max(fabs(k.s0 - cx), farx[t % BW]),
+                         max(fabs(k.s1 - cy), fary[t / BW]), k.s2, k.s345);
     }
     float r[16], gr[16], b[16], cov[16];
     vstore16(st.r, 0, r);

@@ -11,9 +11,10 @@ BLOCK = 4  # block side: the 16 pixels of a work-item (float16 lanes)
 
 
 def block_local_bytes(scales: int, spp: int, group: int = 1) -> int:
-    """Local memory of a work-group: two sort buffers of 8-byte entries per work-item."""
+    """Local memory of a work-group: per work-item and window sample, two 8-byte sort
+    entries and a 32-byte record."""
     r = 2 if scales == 2 else 3
-    return group * 2 * (BLOCK + 2 * r) ** 2 * spp * 8
+    return group * (BLOCK + 2 * r) ** 2 * spp * (2 * 8 + 32)
 
 
 class SweepBlock:
@@ -45,7 +46,7 @@ class SweepBlock:
         if not exponent > 0:
             raise ValueError(f"exponent: must be positive, got {exponent}")
         if not 1 <= spp <= 255:
-            raise ValueError(f"spp: the block sort packs the sample index in 8 bits, got {spp}")
+            raise ValueError(f"spp: the block sort takes 1 to 255 samples per pixel, got {spp}")
         self.group = int(group)
         dev = context.devices[0]
         need = block_local_bytes(scales, spp, self.group)
