@@ -160,7 +160,7 @@ def cmd_reconstruct(args) -> int:
 
 
 #: argparse destinations of ``reconstruct`` that are method knobs of the same name
-METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile")
+METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile", "group")
 
 
 def cmd_compare(args) -> int:
@@ -396,8 +396,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--dof-layers", action="store_true",
                     help="sweep: sort-free three-layer depth-of-field variant")
     sp.add_argument("--exponent", type=float, help="sweep: weight exponent (paper: 1.3)")
-    sp.add_argument("--sort", choices=("tile", "pixel"), help="sweep: how the window is ordered")
+    sp.add_argument("--sort", choices=("block", "tile", "pixel"),
+                    help="sweep: how the window is ordered (default: block on CPUs, else tile)")
     sp.add_argument("--tile", type=int, help="sweep: tile size of sort=tile")
+    sp.add_argument("--group", type=int, help="sweep: 4x4 blocks per work-group of sort=block")
     sp.add_argument("--json", action="store_true", help="print one JSON object")
     dev(sp)
     sp.set_defaults(fn=cmd_reconstruct)

@@ -6,9 +6,9 @@
  * and writes the samples sorted by depth (stable: equal depths keep sample order) as
  *   keys   float4 (H, W, SPP): (x, y, depth, D)
  *   colors float4 (H, W, SPP): (r, g, b, 0)
- * Positions are clamped into their own pixel [px, px+1) (validation allows a hair outside,
- * and a sample on the right or bottom edge belongs to its pixel): with sweep_resolve's
- * half-open boxes [-r, r) every sample then falls in its own pixel's 1x1 block, so no pixel
+ * Positions are moved strictly inside their own pixel, [p + e, p + 1 - e] with
+ * e = max(2^-12, 1 ulp) (validation allows a sample on an edge, or a hair past it): every
+ * sample then falls in exactly the blocks of the pixels whose window holds it, so no pixel
  * is left without weight (a 1 spp frame whose samples sit on pixel corners gave 0/0).
  * Inputs are the SoA sample fields: color (H,W,S,3), position (H,W,S,2), depth (H,W,S),
  * motion (H,W,S,2). coc(w) = c0 / w + c1 (inf depth gives c1).
@@ -30,6 +30,13 @@
 #define WG_Y 4
 #endif
 
+/* v moved strictly inside pixel p (see the header); the NumPy reference does the same */
+inline float sweep_inside(float v, int p)
+{
+    const float lo = (float)p, hi = (float)(p + 1);
+    return clamp(v, fmax(lo + 0x1p-12f, nextafter(lo, hi)), fmin(hi - 0x1p-12f, nextafter(hi, lo)));
+}
+
 __kernel void sweep_prepare(__global const float *color, __global const float *position,
                             __global const float *depth, __global const float *motion,
                             const int width, const int height, const float c0, const float c1,
@@ -48,8 +55,7 @@ __kernel void sweep_prepare(__global const float *color, __global const float *p
         d = fmax(d, length(vload2(base + i, motion)));
 #endif
         const float2 p = vload2(base + i, position);
-        const float x = clamp(p.x, (float)px, nextafter((float)(px + 1), 0.0f));
-        const float y = clamp(p.y, (float)py, nextafter((float)(py + 1), 0.0f));
+        const float x = sweep_inside(p.x, px), y = sweep_inside(p.y, py);
         k[i] = (float4)(x, y, z, dscale * d);
         /* insertion sort of indices by depth; strict > keeps equal depths in order */
         int j = i;

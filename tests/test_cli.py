@@ -95,11 +95,14 @@ def test_reconstruct_sweep_flags(tmp_path, capsys):
     assert main(["scene", "spheres", "--size", "40x32", "--spp", "4", "-o", str(f)]) == 0
     capsys.readouterr()
     for flags, mode in ((["--scales", "4"], "4-scale"), (["--dof-layers"], "dof_layers"),
+                        (["--sort", "block", "--group", "2"], "2-scale"),
                         (["--exponent", "1.3", "--sort", "pixel"], "2-scale")):
         assert main(["reconstruct", str(f), "--method", "sweep", "-o", str(tmp_path / "o.exr"),
                      "--json", *flags]) == 0
         rep = json.loads(capsys.readouterr().out)
         assert rep["mode"] == mode, flags
+        if "--group" in flags:
+            assert rep["sort"] == "block" and rep["group"] == 2
     assert rep["exponent"] == 1.3 and rep["sort"] == "pixel"
     assert main(["reconstruct", str(f), "-o", str(tmp_path / "o.exr"), "--scales", "4"]) == 2
     assert "unknown knobs" in capsys.readouterr().err  # box takes no scales

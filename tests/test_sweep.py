@@ -8,7 +8,7 @@ from conftest import assert_close
 
 import clrecon
 from clrecon.camera import CocModel
-from clrecon.samples import SampleBuffer
+from clrecon.samples import POSITION_TOLERANCE, SampleBuffer
 from clrecon.scenes import get_scene, render_samples
 from clrecon.sweep import reference as ref
 
@@ -41,6 +41,10 @@ CASES = [
     dict(scales=2, diameter_scale=0.5), dict(scales=2, sort="tile", tile=8),
     dict(scales=2, tile_merge="serial"), dict(scales=2, tile_merge="bitonic"),
     dict(scales=4, tile_merge="serial", tile=8), dict(scales=4, tile_merge="bitonic"),
+    dict(scales=2, sort="block"), dict(scales=4, sort="block"),
+    dict(scales=2, sort="block", exponent=1.3), dict(scales=4, sort="block", exponent=1.3),
+    dict(scales=2, sort="block", smooth_motion=False, diameter_scale=0.5),
+    dict(scales=2, sort="block", group=4), dict(scales=4, sort="block", group=2),
 ]
 
 
@@ -50,7 +54,7 @@ def test_sorted_sweep_matches_reference(device, rng, knobs):
     d = ref.denoising_diameter(buf, knobs.get("smooth_motion", True),
                                knobs.get("diameter_scale", 1.0))
     assert d.min() < 1 and d.max() > 7, "the frame must exercise every scale"
-    hw = ("sort", "tile", "tile_merge")
+    hw = ("sort", "tile", "tile_merge", "group")
     want = ref.reconstruct(buf, **{k: v for k, v in knobs.items() if k not in hw})
     got = clrecon.reconstruct(buf, "sweep", device, **knobs)
     assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"sweep {knobs}")
@@ -58,13 +62,50 @@ def test_sorted_sweep_matches_reference(device, rng, knobs):
 
 @pytest.mark.parametrize("shape", [(1, 1, 1), (3, 17, 2), (9, 5, 8)],
                          ids=lambda s: "x".join(map(str, s)))
-@pytest.mark.parametrize("knobs", [dict(scales=2), dict(scales=4, sort="pixel"),
-                                   dict(dof_layers=True)], ids=["2tile", "4pixel", "layers"])
+@pytest.mark.parametrize("knobs", [dict(scales=2, sort="tile"), dict(scales=4, sort="pixel"),
+                                   dict(scales=2, sort="block"), dict(scales=4, sort="block"),
+                                   dict(dof_layers=True)],
+                         ids=["2tile", "4pixel", "2block", "4block", "layers"])
 def test_odd_sizes(device, rng, shape, knobs):
     buf = frame(rng, *shape)
     got = clrecon.reconstruct(buf, "sweep", device, **knobs)
     want = ref.reconstruct(buf, **{k: v for k, v in knobs.items() if k != "sort"})
     assert_close(got, want, rtol=2e-4, atol=2e-5, what="sweep")
+
+
+@pytest.mark.parametrize("sort", ["block", "tile", "pixel"])
+@pytest.mark.parametrize("scales", [2, 4])
+def test_positions_on_pixel_edges(device, rng, sort, scales):
+    """Positions on (and up to the validation tolerance past) their pixel's edges: the
+    window is the pixels around, whatever the box filters of a neighbouring pixel say."""
+    buf = frame(rng, h=13, w=14, s=4)
+    ys, xs = np.mgrid[0:13, 0:14]
+    edge = rng.integers(0, 4, buf.depth.shape)
+    tol = 0.9 * POSITION_TOLERANCE
+    lo_x, lo_y = (xs - tol)[..., None], (ys - tol)[..., None]
+    buf.position[..., 0] = np.where(edge == 0, lo_x, np.where(edge == 1, lo_x + 1 + 2 * tol,
+                                                               buf.position[..., 0]))
+    buf.position[..., 1] = np.where(edge == 2, lo_y, np.where(edge == 3, lo_y + 1 + 2 * tol,
+                                                               buf.position[..., 1]))
+    buf.validate()
+    want = ref.reconstruct(buf, scales=scales)
+    got = clrecon.reconstruct(buf, "sweep", device, scales=scales, sort=sort)
+    assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"edges {sort}")
+
+
+def test_block_sort_is_the_cpu_default_and_falls_back(device, rng):
+    import pyopencl as cl
+
+    res = clrecon.run(frame(rng), "sweep", device)
+    cpu = bool(device.device.type & cl.device_type.CPU)
+    assert (res.method["sort"] == "block") == cpu
+    if cpu:
+        assert set(res.pass_ms) == {"sweep_block"} and res.method["group"] >= 1
+        # the block sort packs the sample index in 8 bits: 256 spp takes the tile sort
+        res = clrecon.run(frame(rng, h=3, w=5, s=256), "sweep", device, scales=2)
+        assert res.method["sort"] == "tile"
+    with pytest.raises(ValueError, match="spp"):
+        clrecon.reconstruct(frame(rng, h=2, w=2, s=256), "sweep", device, sort="block")
 
 
 @pytest.mark.parametrize("scale", [1.0, 0.4])
@@ -94,9 +135,27 @@ def test_in_focus_static_frame_is_the_box_filter(device, rng):
     buf = frame(rng, motion=False)
     buf.depth[:] = 4.0  # everything in focus: D = 0, only the 1x1 scale
     box = buf.color.astype(np.float64).mean(axis=2)
-    for knobs in (dict(scales=2), dict(scales=4), dict(dof_layers=True)):
+    for knobs in (dict(scales=2), dict(scales=4), dict(dof_layers=True),
+                  dict(scales=2, sort="block"), dict(scales=4, sort="tile")):
         assert_close(clrecon.reconstruct(buf, "sweep", device, **knobs), box, rtol=1e-5,
                      what=f"in focus {knobs}")
+
+
+@pytest.mark.parametrize("scales,coc_diameter,plan", [
+    (2, 0.9, "box"), (2, 1.6, "sweep"), (4, 2.9, "box"), (4, 3.5, "sweep")])
+def test_default_plan_is_the_box_filter_when_only_1x1_can_weigh(device, rng, scales,
+                                                                  coc_diameter, plan):
+    """'Model only what a scene requires': diameters <= 1 (<= 3 for four scales) leave
+    every weight at 1/spp on the pixel's own samples; the plan is then the box pass, and
+    the image is still the reference's."""
+    buf = frame(rng, motion=False, ties=False)
+    coc = buf.coc_model.coc(buf.depth)
+    buf.depth[:] = np.where(np.abs(coc) > coc_diameter / 2, 4.0, buf.depth)  # clip to |coc|
+    res = clrecon.run(buf, "sweep", device, scales=scales)
+    assert res.method["box_equivalent"] == (plan == "box")
+    assert (set(res.pass_ms) == {"box"}) == (plan == "box")
+    want = ref.reconstruct(buf, scales=scales)
+    assert_close(res.image, want, rtol=2e-4, atol=2e-5, what=f"{scales} {coc_diameter}")
 
 
 def test_flat_field_energy_and_finite(device, rng):
@@ -137,6 +196,9 @@ def test_describe_reports_mode_and_knobs(device, rng):
     res = clrecon.run(frame(rng), "sweep", device, scales=4, sort="pixel")
     assert res.method["mode"] == "4-scale" and res.method["sort"] == "pixel"
     assert set(res.pass_ms) == {"sweep_prepare", "sweep_resolve"}
+    res = clrecon.run(frame(rng), "sweep", device, sort="block", group=2)
+    assert res.method["sort"] == "block" and res.method["group"] == 2
+    assert set(res.pass_ms) == {"sweep_block"}
     res = clrecon.run(frame(rng, motion=False), "sweep", device)
     assert res.method["smooth_motion"] is False  # no motion in the frame: no motion term
     res = clrecon.run(frame(rng), "sweep", device, dof_layers=True)

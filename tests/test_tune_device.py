@@ -69,8 +69,14 @@ def test_pipelines_report_where_their_configuration_came_from(device, monkeypatc
     res = clrecon.run(buf, "box", device)
     assert res.method["tuning"] == {"box": "env"} and res.method["local_size"] == [1, 1]
     monkeypatch.setenv(db.env_var("sweep_resolve"), '{"sort": "pixel", "wg_x": 4, "wg_y": 4}')
+    monkeypatch.setenv(db.env_var("sweep_block"), '{"group": 2}')
     res = clrecon.run(buf, "sweep", device)
-    assert res.method["tuning"]["sweep_resolve"] == "env" and res.method["sort"] == "pixel"
+    if res.method["sort"] == "block":  # the default plan on CPUs
+        assert res.method["tuning"]["sweep_block"] == "env" and res.method["group"] == 2
+        res = clrecon.run(buf, "sweep", device, sort="block", group=1)
+        assert res.method["tuning"]["sweep_block"] == "api" and res.method["group"] == 1
+    else:
+        assert res.method["tuning"]["sweep_resolve"] == "env" and res.method["sort"] == "pixel"
     res = clrecon.run(buf, "sweep", device, sort="tile")  # the caller's knob wins
     assert res.method["tuning"]["sweep_resolve"] == "api" and res.method["sort"] == "tile"
 

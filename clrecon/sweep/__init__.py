@@ -2,31 +2,47 @@
 
 Plans (knobs in brackets):
 
-* sorted sweep [``scales=2`` (Appendix A, 1x1/5x5 blended) or ``4`` (Appendix B)]:
-  ``sweep_prepare`` -> ``sweep_resolve`` [``sort="tile"|"pixel"``, ``tile``,
-  ``tile_merge="auto"|"serial"|"bitonic"``, ``exponent``];
+* sorted sweep [``scales=2`` (Appendix A, 1x1/5x5 blended) or ``4`` (Appendix B),
+  ``exponent``], by one of three plans, same image (``sort``):
+
+  - ``"block"`` (default on CPUs): ``sweep_block`` alone [``group``]: one work-item per 4x4
+    pixel block radix-sorts the block's window once and sweeps it in float16 lanes;
+  - ``"tile"`` (default elsewhere): ``sweep_prepare`` -> ``sweep_resolve`` [``tile``,
+    ``tile_merge="auto"|"serial"|"bitonic"``]: one sort per tile in local memory, then every
+    pixel walks the tile's list;
+  - ``"pixel"``: ``sweep_prepare`` -> ``sweep_resolve``: each pixel merges its window's
+    per-pixel sorted runs (the straightforward version, for comparison);
 * ``dof_layers=True``: the sort-free three-layer depth-of-field variant,
   ``sweep_layer_sums`` -> ``sweep_layer_resolve`` (defocus only: motion is not smoothed).
 
 ``diameter_scale`` scales the denoising diameter ``max(2|coc|, |motion|)``;
 ``smooth_motion`` (default: whether the frame has motion) adds the motion term.
 
-Model only what the frame requires: when no sample's denoising diameter exceeds the smallest
-block (1 px for two scales and the three layers, 3 px for four scales: ``max_diameter`` from
-the frame inspection), every sample falls in the narrow scale, and Appendix A/B's weights
-reduce exactly to the per-pixel average, so the plan is the one ``box`` pass
-(``specialize=False`` keeps the full sweep; the tests check both agree).
+Model only what the frame requires: when the frame inspection says no sample's denoising
+diameter exceeds the narrow block (1 px for two scales and the three layers, 3 px for four
+scales), every sample falls in the narrow scale and Appendix A/B's weights reduce exactly to
+the per-pixel average, so the plan is the one ``box`` pass. ``specialize=False``, or an
+explicit ``sort``/``tile``/``tile_merge``/``group``, runs the sweep (the tests check both
+agree).
 """
 from __future__ import annotations
 
 import pyopencl as cl
 
-from ..box import BoxPipeline
+from ..box import Box
 from ..pipeline import DeviceSamples, Pipeline, register
 from ..tune.runtime import tuned
 from ..tune.specs import DEFAULTS, local_size_of, make_resolve
+from .block import SweepBlock, block_local_bytes
 from .layers import SweepLayerResolve, SweepLayerSums
 from .prepare import SweepPrepare
+
+
+def default_sort(context, scales: int, spp: int) -> str:
+    """``"block"`` on CPUs (measured fastest there) where it fits, ``"tile"`` elsewhere."""
+    dev = context.devices[0]
+    fits = spp <= 255 and block_local_bytes(scales, spp) <= dev.local_mem_size
+    return "block" if dev.type & cl.device_type.CPU and fits else "tile"
 
 
 @register
@@ -36,7 +52,8 @@ class SweepPipeline(Pipeline):
     def __init__(self, context, info, scales: int = 2, dof_layers: bool = False,
                  exponent: float = 1.0, smooth_motion: bool | None = None,
                  diameter_scale: float = 1.0, sort: str | None = None, tile: int | None = None,
-                 tile_merge: str | None = None, specialize: bool = True):
+                 tile_merge: str | None = None, group: int | None = None,
+                 specialize: bool = True):
         super().__init__(context, info)
         if not diameter_scale >= 0:
             raise ValueError(f"diameter_scale: must be >= 0, got {diameter_scale}")
@@ -45,74 +62,94 @@ class SweepPipeline(Pipeline):
         self.scales, self.dof_layers, self.exponent = int(scales), bool(dof_layers), exponent
         self.smooth_motion = info.has_motion if smooth_motion is None else bool(smooth_motion)
         self.diameter_scale = float(diameter_scale)
-        motion = info.max_abs_motion if self.smooth_motion and not self.dof_layers else 0.0
-        self.max_diameter = self.diameter_scale * max(2.0 * info.max_abs_coc, motion)
-        narrow = 3.0 if self.scales == 4 and not self.dof_layers else 1.0
-        self.box_equivalent = bool(specialize) and self.max_diameter <= narrow
-        if self.box_equivalent:
-            self.fields = BoxPipeline.fields
-            self.inner = BoxPipeline(context, info)
-            self.tuning = self.inner.tuning
-            return
         spp = info.spp
         npix = info.width * info.height
         rw = cl.mem_flags.READ_WRITE
         self.tuning: dict[str, str] = {}
+        self.block = self.box = None
 
         def local(pass_name):
             found = tuned(context, pass_name, info)
             self.tuning[pass_name] = found.source
             return local_size_of(found.config)
 
+        # every sample's diameter within the narrow block: only the 1x1 box ever gets weight,
+        # every weight is 1/spp, and the sweep is the box filter
+        motion = info.max_abs_motion if self.smooth_motion and not self.dof_layers else 0.0
+        self.max_diameter = self.diameter_scale * max(2.0 * info.max_abs_coc, motion)
+        narrow = 3.0 if self.scales == 4 and not self.dof_layers else 1.0
+        explicit = (sort, tile, tile_merge, group) != (None,) * 4
+        self.box_equivalent = bool(specialize) and not explicit and self.max_diameter <= narrow
+        if self.box_equivalent:
+            self.fields = ("color",)
+            self.box = Box(context, local("box"))
+            return
         if self.dof_layers:
             self.fields = ("color", "depth")
             self.sums_pass = SweepLayerSums(context, spp, local("sweep_layer_sums"))
             self.combine = SweepLayerResolve(context, spp, local("sweep_layer_resolve"))
             self.sums = cl.Buffer(context, rw, npix * 3 * 16)
-        else:
-            self.fields = ("color", "position", "depth", "motion")
-            self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
-            given = {k: v for k, v in (("sort", sort), ("tile", tile), ("tile_merge", tile_merge))
-                     if v is not None}
-            if given:  # the caller's knobs win over tuning; the rest from the pass default
-                config = {"sort": "tile", "tile": 4, "tile_merge": "auto"} | given
-                if config["sort"] == "pixel":
-                    config = {"sort": "pixel", "wg_x": 16, "wg_y": 4}
-                self.tuning["sweep_resolve"] = "api"
+            return
+        self.fields = ("color", "position", "depth", "motion")
+        given = {k: v for k, v in (("sort", sort), ("tile", tile), ("tile_merge", tile_merge))
+                 if v is not None}
+        if given.get("sort", "tile" if given else default_sort(context, self.scales, spp)) \
+                == "block":
+            if group is None:
+                found = tuned(context, "sweep_block", info)
+                group = (found.config or DEFAULTS["sweep_block"])["group"]
+                self.tuning["sweep_block"] = found.source
             else:
-                found = tuned(context, "sweep_resolve", info)
-                config = found.config or DEFAULTS["sweep_resolve"]
-                self.tuning["sweep_resolve"] = found.source
-            self.resolve = make_resolve(context, spp, self.scales, exponent, config)
-            self.keys = cl.Buffer(context, rw, npix * spp * 16)
-            self.colors = cl.Buffer(context, rw, npix * spp * 16)
+                self.tuning["sweep_block"] = "api"
+            self.block = SweepBlock(context, spp, self.scales, exponent, self.smooth_motion,
+                                    group)
+            return
+        self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
+        if given:  # the caller's knobs win over tuning; the rest from the pass default
+            config = {"sort": "tile", "tile": 4, "tile_merge": "auto"} | given
+            if config["sort"] == "pixel":
+                config = {"sort": "pixel", "wg_x": 16, "wg_y": 4}
+            self.tuning["sweep_resolve"] = "api"
+        else:
+            found = tuned(context, "sweep_resolve", info)
+            config = found.config or DEFAULTS["sweep_resolve"]
+            self.tuning["sweep_resolve"] = found.source
+        self.resolve = make_resolve(context, spp, self.scales, exponent, config)
+        self.keys = cl.Buffer(context, rw, npix * spp * 16)
+        self.colors = cl.Buffer(context, rw, npix * spp * 16)
 
     def describe(self) -> dict:
         d = {"method": "sweep", "diameter_scale": self.diameter_scale, "tuning": self.tuning,
              "max_diameter_px": round(self.max_diameter, 3),
              "box_equivalent": self.box_equivalent}
-        if self.box_equivalent:
+        if self.box is not None:
             return d | {"mode": "box (every denoising diameter within the narrow block)",
-                        "requested": "dof_layers" if self.dof_layers else f"{self.scales}-scale"}
+                        "requested": "dof_layers" if self.dof_layers else f"{self.scales}-scale",
+                        "sort": None}
         if self.dof_layers:
             return d | {"mode": "dof_layers", "smooth_motion": False}
-        return d | {"mode": f"{self.scales}-scale", "scales": self.scales,
-                    "exponent": self.exponent, "smooth_motion": self.smooth_motion,
-                    "sort": self.resolve.sort, "tile": self.resolve.tile,
+        d |= {"mode": f"{self.scales}-scale", "scales": self.scales, "exponent": self.exponent,
+              "smooth_motion": self.smooth_motion}
+        if self.block is not None:
+            return d | {"sort": "block", "group": self.block.group}
+        return d | {"sort": self.resolve.sort, "tile": self.resolve.tile,
                     "tile_merge": self.resolve.tile_merge}
 
     def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
         w, h = samples.width, samples.height
-        if self.box_equivalent:
-            self.inner.events = []
-            ev = self.inner.enqueue(queue, samples, out, wait_for)
-            self.events = self.inner.events
+        if self.box is not None:
+            ev = self.box(queue, samples["color"], out, w, h, samples.spp, wait_for)
+            self.events.append(("box", ev))
             return ev
         if self.dof_layers:
             ev = self.sums_pass(queue, samples, self.diameter_scale, self.sums, wait_for)
             self.events.append(("sweep_layer_sums", ev))
             ev = self.combine(queue, self.sums, w, h, out, [ev])
             self.events.append(("sweep_layer_resolve", ev))
+            return ev
+        if self.block is not None:
+            ev = self.block(queue, samples, self.diameter_scale, out, wait_for)
+            self.events.append(("sweep_block", ev))
             return ev
         ev = self.prepare(queue, samples, self.diameter_scale, self.keys, self.colors, wait_for)
         self.events.append(("sweep_prepare", ev))

@@ -3,9 +3,10 @@ paper's Algorithm 2 and Appendices A and B literally; the kernels are tested aga
 
 Conventions shared with the kernels (and not fixed by the paper):
 
-* ``x_i - x_c``: the sample's sensor ``position``, clamped into its own pixel ``[p, p + 1)``,
-  minus the pixel centre; the boxes are half-open, ``[-r, r)``. So every sample lies in exactly
-  the blocks its pixel belongs to, and no pixel's 1x1 block is empty (a sample on a pixel
+* ``x_i - x_c``: the sample's sensor ``position``, moved strictly inside its own pixel
+  (clamped to ``[p + e, p + 1 - e]`` with ``e = max(2^-12, one float32 ulp)``), minus the pixel
+  centre. So every sample lies in exactly the blocks its pixel belongs to, whether a kernel
+  tests ``|x| < r`` or ``-r <= x < r``, and no pixel's 1x1 block is empty (a sample on a pixel
   corner, which validation accepts, would otherwise count for no pixel: 0/0 at 1 spp).
 * The window of a pixel holds every sample of the ``(2R+1)^2`` pixels around it that lie in
   the image (R = 2 for two scales, 3 for four); pixels outside contribute nothing.
@@ -49,9 +50,12 @@ def _gather(buf: SampleBuffer, radius: int, diameter: np.ndarray):
     k = 2 * radius + 1
     pad = [(radius, radius), (radius, radius), (0, 0)]
     ys, xs = np.mgrid[0:h, 0:w]
-    def own(pos, lo):  # clamp into [lo, lo + 1) in float32, as the kernel does
-        hi = np.nextafter((lo + 1).astype(np.float32), np.float32(0))
-        return np.clip(pos, lo.astype(np.float32), hi)
+    def own(pos, p):  # strictly inside pixel p, in float32, as the kernels clamp
+        p = p.astype(np.float32)
+        e = np.float32(2.0 ** -12)
+        lo = np.maximum(p + e, np.nextafter(p, np.float32(np.inf)))
+        hi = np.minimum((p + 1) - e, np.nextafter(p + 1, np.float32(0)))
+        return np.clip(pos, lo, hi)
 
     px = own(buf.position[..., 0], xs[..., None])
     py = own(buf.position[..., 1], ys[..., None])

@@ -159,6 +159,15 @@ def _resolve_runner(dev, w, h, spp):
                       lambda p, q, out: p(q, keys, colors, w, h, out), (h, w, 3), resolve_group)
 
 
+def _block_runner(dev, w, h, spp):
+    from ..sweep.block import SweepBlock
+
+    s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp))
+    return PassRunner(dev, lambda c: SweepBlock(dev.context, spp, 2, 1.0, True, c["group"]),
+                      lambda p, q, out: p(q, s, 1.0, out), (h, w, 3),
+                      lambda c: None if c is None else int(c["group"]))
+
+
 def _layer_sums_runner(dev, w, h, spp):
     from ..sweep.layers import SweepLayerSums
 
@@ -215,6 +224,10 @@ SPECS: dict[str, PassSpec] = {s.name: s for s in (
     PassSpec("sweep_resolve", "sweep_resolve", {"sort": "tile", "tile": 4,
                                                 "tile_merge": "auto"},
              resolve_candidates, _resolve_runner, rtol=1e-4, atol=1e-5),
+    # the whole sorted sweep per 4x4 block (sort="block"): work-items per group
+    PassSpec("sweep_block", "sweep_block", {"group": 1},
+             lambda: [{"group": g} for g in (1, 2, 4, 8, 16)], _block_runner,
+             rtol=1e-4, atol=1e-5),
     PassSpec("sweep_layer_sums", "sweep_layer_sums", DEFAULT_LOCAL, local_candidates,
              _layer_sums_runner),
     PassSpec("sweep_layer_resolve", "sweep_layer_resolve", DEFAULT_LOCAL, local_candidates,

@@ -1,0 +1,71 @@
+"""Pass ``sweep_block``: the whole sorted sweep for 4x4 pixel blocks in one kernel."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ..device import get_kernel
+from ..pipeline import DeviceSamples
+
+BLOCK = 4  # block side: the 16 pixels of a work-item (float16 lanes)
+
+
+def block_local_bytes(scales: int, spp: int, group: int = 1) -> int:
+    """Local memory of a work-group: per work-item and window sample, two 8-byte sort
+    entries and a 32-byte record."""
+    r = 2 if scales == 2 else 3
+    return group * (BLOCK + 2 * r) ** 2 * spp * (2 * 8 + 32)
+
+
+class SweepBlock:
+    """``kernels/sweep_block.cl``: each work-item radix-sorts the samples of a 4x4 block's
+    window once and sweeps them for the block's 16 pixels in float16 lanes (same image as
+    ``sweep_prepare`` + ``sweep_resolve``, from the sample buffer directly).
+
+    Parameters
+    ----------
+    context : cl.Context
+    spp : int
+        Samples per pixel (at most 255).
+    scales : int
+        2 (Appendix A) or 4 (Appendix B).
+    exponent : float
+        Weights are raised to it (the paper's 1.3 variant; 1 = off).
+    smooth_motion : bool
+        Whether the denoising diameter includes the motion length.
+    group : int
+        Work-items (independent blocks) per work-group: a tunable.
+    """
+
+    name = "sweep_block"
+
+    def __init__(self, context: cl.Context, spp: int, scales: int = 2, exponent: float = 1.0,
+                 smooth_motion: bool = True, group: int = 1):
+        if scales not in (2, 4):
+            raise ValueError(f"scales: must be 2 or 4, got {scales}")
+        if not exponent > 0:
+            raise ValueError(f"exponent: must be positive, got {exponent}")
+        if not 1 <= spp <= 255:
+            raise ValueError(f"spp: the block sort takes 1 to 255 samples per pixel, got {spp}")
+        self.group = int(group)
+        dev = context.devices[0]
+        need = block_local_bytes(scales, spp, self.group)
+        if self.group < 1 or need > dev.local_mem_size:
+            raise ValueError(
+                f"group: {self.group} blocks need {need} bytes of local memory for {spp} spp "
+                f"(device has {dev.local_mem_size}); use a smaller group or sort='pixel'")
+        self.kernel = get_kernel(context, "sweep_block", "sweep_block", {
+            "SPP": spp, "SCALES": scales, "SMOOTH_MOTION": smooth_motion,
+            "EXPONENT": float(exponent), "EXPONENT_ON": exponent != 1.0, "GROUP": self.group})
+
+    def __call__(self, queue, samples: DeviceSamples, diameter_scale: float, out: cl.Buffer,
+                 wait_for=None) -> cl.Event:
+        w, h = samples.width, samples.height
+        c0, c1 = samples.coc
+        self.kernel.set_args(samples["color"], samples["position"], samples["depth"],
+                             samples["motion"], np.int32(w), np.int32(h), np.float32(c0),
+                             np.float32(c1), np.float32(diameter_scale), out)
+        blocks = -(-w // BLOCK) * -(-h // BLOCK)
+        size = -(-blocks // self.group) * self.group
+        return cl.enqueue_nd_range_kernel(queue, self.kernel, (size,), (self.group,),
+                                          wait_for=wait_for)
