@@ -1,0 +1,201 @@
+"""Method ``layered``: Practical Layered Reconstruction (Hasselgren, Munkberg, Vaidyanathan
+2015) and its baseline LRDM (Munkberg et al. 2014).
+
+Plan (passes; knobs in brackets)::
+
+    tile_stats [tile, stats_stride, seed, bucket_coc]
+      -> partition_setup [merge_threshold, sigma_x, max_partitions]
+      -> reproject [splat, guard]
+      -> filter_sheared (x, y) | filter_rotated (u, v) [filter]
+      -> composite
+
+Modes: ``practical`` (default: sparse statistics, every ``3 * spp``-th sample; layer
+merging at 10%; sheared filter) and ``lrdm`` (full statistics, no merging, the rotated
+separable Gaussian with bilinear taps). Without motion in the frame (``info.has_motion``
+false) every kernel is built with ``-D HAS_MOTION=0`` (``defocus_only``, in ``describe()``).
+
+Depth buckets (``kernels/layered.h``): a bucket spans at most ``bucket_coc`` (0.5 px) of CoC
+and at most 1/8 of the frame's depth range, so they are evenly spaced in CoC near the focus
+plane and uniform in depth beyond; the steps are stretched when the frame needs more than
+``NBUCKETS - 1 = 31`` of them; misses have a bucket of their own, the last.
+
+Filter derivation (per partition; mean CoC ``c``, mean motion ``m`` from the statistics).
+A sample with CoC ``c_i`` and motion ``m_i`` is seen at ``p_i + c_i l + (t - 1/2) m_i`` (``p_i``
+its pinhole position at mid-shutter, ``l`` in the unit disc, ``t`` in [0, 1]); the frame to
+reconstruct is the pinhole image convolved per surface with its disc of radius ``|c_i|`` and
+its motion segment ``m_i``. Reprojection with the partition's ``A = c`` and ``b = m`` (eq. 1)
+puts the sample at ``p_i + (c_i - c) l + (t - 1/2)(m_i - m)``: the residual spreads it with
+variance ``(c_i - c)^2 / 4`` per axis and ``(m_i - m)(m_i - m)^T / 12``. What remains to apply
+is the mean physical blur less that residual; in expectation over the partition (the cross
+terms vanish because the residuals have mean zero) that is the covariance of the disc and
+the segment at the means::
+
+    S = (c^2 / 4 + sigma_x^2) I + m m^T / 12
+
+(a uniform disc of radius r has variance r^2 / 4 per axis, a segment of length L variance
+L^2 / 12 along it; ``sigma_x = 0.33`` px is the paper's spatial filter). Its principal axes
+give ``sigma_u >= sigma_v`` with ``theta`` along ``m``. The sheared form (eq. 9) follows from
+``B B^T = S`` directly: ``s_v^2 = S_yy``, ``beta = S_xy / S_yy``, ``s_u^2 = det S / S_yy``
+(equal to eq. 9's expressions). The recursive filter uses ``gamma = exp(-sqrt 2 / s_u)``
+(eq. 10), whose forward-backward pair has variance ``2 gamma / (1 - gamma)^2 ~ s_u^2``.
+Samples are weighted uniformly over lens and shutter (the uvt part of the 5D filter is
+constant over the aperture and the shutter).
+
+Large filters: a partition whose ``3 sigma_u`` exceeds the guard band ``G`` (16 grid px) is
+reprojected onto a coarser grid, spacing ``s`` the smallest power of two (<= tile) that fits,
+and filtered there; composite reads it bilinearly. Samples are gathered from at most 96 px
+outside a tile (``REACH_MAX``): blurs beyond that are truncated (then renormalised).
+
+Merging (partition_setup): front to back over populated buckets, a bucket joins the running
+partition when the merged filter's ``sigma_u`` and ``sigma_v`` stay within ``merge_threshold``
+(10%) of the larger candidate's; at most ``max_partitions`` (4) partitions per tile remain,
+further pairs merged by least shrink. Partitions cover the bucket axis without gaps, so a
+sample that sparse statistics did not see still belongs to one. Empty tiles get one in-focus
+static partition. Compositing divides by the accumulated opacity where nothing covers the
+back (and falls back to the pixel's mean where nothing covers at all).
+"""
+from __future__ import annotations
+
+import math
+
+import pyopencl as cl
+
+from ..pipeline import DeviceSamples, LocalSize, Pipeline, register
+from .composite import Composite
+from .filter_rotated import FilterRotated
+from .filter_sheared import FilterSheared
+from .partition_setup import PartitionSetup
+from .reference import NCH, NPAR, NSTAT, Layout, bucket_params
+from .reproject import Reproject
+from .tile_stats import TileStats
+
+MODES = ("practical", "lrdm")
+FILTERS = ("sheared", "rotated")
+SPLATS = ("nearest", "bilinear")
+NBUCKETS = 32
+
+
+@register
+class LayeredPipeline(Pipeline):
+    name = "layered"
+    fields = ("color", "position", "depth", "lens", "time", "motion")
+
+    def __init__(self, context, info, mode: str = "practical", filter: str | None = None,
+                 tile: int = 32, stats_stride: int | None = None,
+                 merge_threshold: float | None = None, sigma_x: float = 0.33,
+                 max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
+                 splat: str = "nearest", seed: int = 0, has_motion: bool | None = None):
+        super().__init__(context, info)
+        if mode not in MODES:
+            raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
+        filter = filter or ("rotated" if mode == "lrdm" else "sheared")
+        if filter not in FILTERS:
+            raise ValueError(f"filter: must be one of {FILTERS}, got {filter!r}")
+        if splat not in SPLATS:
+            raise ValueError(f"splat: must be one of {SPLATS}, got {splat!r}")
+        tile = int(tile)
+        if tile < 2 or tile > 128 or tile & (tile - 1):
+            raise ValueError(f"tile: must be a power of two in [2, 128], got {tile}")
+        if stats_stride is None:
+            stats_stride = 1 if mode == "lrdm" else 3 * info.spp
+        if int(stats_stride) < 1:
+            raise ValueError(f"stats_stride: must be >= 1, got {stats_stride}")
+        if merge_threshold is None:
+            merge_threshold = -1.0 if mode == "lrdm" else 0.1
+        if not sigma_x > 0:
+            raise ValueError(f"sigma_x: must be > 0, got {sigma_x}")
+        if not 1 <= int(max_partitions) <= 16:
+            raise ValueError(f"max_partitions: must be in [1, 16], got {max_partitions}")
+        if int(guard) < 2:
+            raise ValueError(f"guard: must be >= 2, got {guard}")
+        if not bucket_coc > 0:
+            raise ValueError(f"bucket_coc: must be > 0, got {bucket_coc}")
+        self.mode, self.filter, self.splat = mode, filter, splat
+        self.stats_stride, self.merge_threshold = int(stats_stride), float(merge_threshold)
+        self.sigma_x, self.bucket_coc, self.seed = float(sigma_x), float(bucket_coc), int(seed)
+        motion = info.has_motion if has_motion is None else bool(has_motion)
+        # the guard band need not exceed the largest blur the frame can have
+        sig = math.sqrt(info.max_abs_coc ** 2 / 4 + info.max_abs_motion ** 2 / 12
+                        + sigma_x ** 2)
+        gmax = max(2, min(int(guard), math.ceil(3 * sig) + 1))
+        self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
+                          spp=info.spp, has_motion=motion)
+        self.tuning: dict[str, str] = {}
+        self.stats_pass = TileStats(context, self.lay, self._local("tile_stats"))
+        self.setup = PartitionSetup(context, self.lay, self._local("partition_setup"))
+        self.reproject = Reproject(context, self.lay, splat == "bilinear",
+                                   self._local("reproject"))
+        if filter == "sheared":
+            self.filt = FilterSheared(context, self.lay, self._local("filter_sheared"))
+        else:
+            self.filt = FilterRotated(context, self.lay, self._local("filter_rotated"))
+        self.comp = Composite(context, self.lay, self._local("composite"))
+        self._alloc(info.width, info.height)
+
+    def _local(self, pass_name: str) -> LocalSize | None:
+        from ..tune.runtime import tuned
+        from ..tune.specs import SPECS, local_size_of
+
+        if pass_name not in SPECS:
+            self.tuning[pass_name] = "builtin"
+            return None
+        found = tuned(self.context, pass_name, self.info)
+        self.tuning[pass_name] = found.source
+        return local_size_of(found.config)
+
+    def buffer_sizes(self, width: int, height: int) -> dict[str, int]:
+        """Bytes of each temporary this plan allocates for a ``width x height`` frame."""
+        lay = self.lay
+        ntx, nty = lay.tiles(width, height)
+        slots = ntx * nty * lay.maxp
+        sizes = {"stats": ntx * nty * lay.nbuckets * NSTAT * 4,
+                 "params": slots * NPAR * 4,
+                 "grids": slots * NCH * lay.dmax ** 2 * 4,
+                 "filtered": slots * NCH * lay.ft ** 2 * 4}
+        if self.filter == "rotated":
+            sizes["tmp"] = sizes["grids"]
+        return sizes
+
+    def _alloc(self, width: int, height: int) -> None:
+        rw = cl.mem_flags.READ_WRITE
+        self.buffers = {k: cl.Buffer(self.context, rw, v)
+                        for k, v in self.buffer_sizes(width, height).items()}
+
+    def describe(self) -> dict:
+        return {"method": "layered", "mode": self.mode, "filter": self.filter,
+                "defocus_only": not self.lay.has_motion, "tile": self.lay.tile,
+                "stats_stride": self.stats_stride, "merge_threshold": self.merge_threshold,
+                "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
+                "guard": self.lay.gmax, "bucket_coc": self.bucket_coc, "splat": self.splat,
+                "device_bytes": sum(self.buffer_sizes(self.info.width,
+                                                      self.info.height).values()),
+                "tuning": self.tuning}
+
+    def bucket_params(self, samples: DeviceSamples) -> tuple:
+        c0, c1 = samples.coc
+        return bucket_params(c0, c1, self.info.min_depth, self.info.max_depth,
+                             self.lay.nbuckets, self.bucket_coc)
+
+    def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
+        w, h = samples.width, samples.height
+        ntx, nty = self.lay.tiles(w, h)
+        b = self.buffers
+        kabc = self.bucket_params(samples)
+        ev = self.stats_pass(queue, samples, kabc, self.stats_stride, self.seed, b["stats"],
+                             wait_for)
+        self.events.append(("tile_stats", ev))
+        ev = self.setup(queue, b["stats"], ntx * nty, self.sigma_x, self.merge_threshold,
+                        b["params"], [ev])
+        self.events.append(("partition_setup", ev))
+        ev = self.reproject(queue, samples, kabc, b["params"], b["grids"], [ev])
+        self.events.append(("reproject", ev))
+        nslots = ntx * nty * self.lay.maxp
+        if self.filter == "sheared":
+            ev = self.filt(queue, b["params"], b["grids"], b["filtered"], nslots, [ev])
+        else:
+            ev = self.filt(queue, b["params"], b["grids"], b["tmp"], b["filtered"], nslots,
+                           [ev])
+        self.events.extend(self.filt.events)
+        ev = self.comp(queue, samples["color"], b["params"], b["filtered"], w, h, out, [ev])
+        self.events.append(("composite", ev))
+        return ev

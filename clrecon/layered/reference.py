@@ -1,0 +1,423 @@
+"""NumPy reference of the passes of method ``layered``, written for clarity and mirroring the
+kernels' data layouts so that every pass can be compared on its own (tests/test_layered_*.py).
+
+Layouts (see ``kernels/layered.h``): ``stats`` (tiles, NBUCKETS, NSTAT); ``params`` (tiles,
+MAXP, NPAR); ``grids`` (tiles, MAXP, NCH, DMAX * DMAX) with row stride ``D`` of the slot;
+``filtered`` (tiles, MAXP, NCH, FT * FT), FT = TILE + 2. Only the used part of a grid (the
+first ``D * D`` values of each plane) and of a filtered plane (``(T/s + 2)^2`` values with row
+stride FT) is defined; the rest is zero here and unspecified on the device.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+NSTAT = 8
+NPAR = 20
+NCH = 5
+MISS_DEPTH = 1e30
+(P_COUNT, P_LO, P_HI, P_A, P_BX, P_BY, P_SU, P_SV, P_COS, P_SIN, P_SHU, P_SHV, P_BETA,
+ P_GAMMA, P_SCALE, P_GUARD, P_REACH, P_DIM) = range(18)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Compile-time shape of the method: the ``-D`` defines every layered kernel shares."""
+
+    tile: int = 32
+    nbuckets: int = 32
+    maxp: int = 4
+    gmax: int = 16
+    spp: int = 8
+    has_motion: bool = True
+    reach_max: int = 96
+
+    @property
+    def dmax(self) -> int:
+        return self.tile + 2 * self.gmax
+
+    @property
+    def ft(self) -> int:
+        return self.tile + 2
+
+    def tiles(self, width: int, height: int) -> tuple[int, int]:
+        return -(-width // self.tile), -(-height // self.tile)
+
+    def defines(self) -> dict:
+        return {"TILE": self.tile, "NBUCKETS": self.nbuckets, "MAXP": self.maxp,
+                "GMAX": self.gmax, "SPP": self.spp, "HAS_MOTION": self.has_motion,
+                "REACH_MAX": self.reach_max}
+
+
+# -- buckets ---------------------------------------------------------------------------------
+
+def bucket_params(c0: float, c1: float, zmin: float, zmax: float, nbuckets: int,
+                  bucket_coc: float = 0.5, uniform: int = 8) -> tuple:
+    """``(ka, kb, kc)`` of the bucket function of ``layered.h`` (float32).
+
+    ``L(w) = -|c0| / (bucket_coc w) + w / dz`` (dz = depth range / ``uniform``) grows with
+    depth; buckets are unit steps of ``(L - L(zmin)) / f``, the stretch ``f >= 1`` chosen so
+    the frame's hit depths fit the ``nbuckets - 1`` hit buckets.
+    """
+    ka0 = -abs(c0) / bucket_coc
+    finite = np.isfinite(zmin) and np.isfinite(zmax) and zmax > zmin > 0
+    kb0 = uniform / (zmax - zmin) if finite else 0.0
+    if not (np.isfinite(zmin) and zmin > 0):
+        zmin = zmax = 1.0
+
+    def ell(w):
+        return ka0 / w + kb0 * w
+
+    span = ell(zmax) - ell(zmin)
+    f = max(1.0, span / ((nbuckets - 1) * 0.999))
+    return np.float32(ka0 / f), np.float32(kb0 / f), np.float32(ell(zmin) / f)
+
+
+def buckets(depth: np.ndarray, ka, kb, kc, nbuckets: int) -> np.ndarray:
+    """Bucket of each depth, in float32 as the kernel computes it."""
+    w = np.asarray(depth, np.float32)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ell = (np.float32(ka) / w + np.float32(kb) * w) - np.float32(kc)
+        b = np.clip(np.floor(ell), 0, nbuckets - 2)
+    b = np.where(np.isnan(b), 0, b).astype(np.int64)
+    return np.where(w < MISS_DEPTH, b, nbuckets - 1)
+
+
+def coc_of(depth, c0, c1):
+    d = np.asarray(depth, np.float64)
+    with np.errstate(divide="ignore"):
+        return np.where(d < MISS_DEPTH, c0 / d + c1, c1)
+
+
+# -- tile_stats ------------------------------------------------------------------------------
+
+def _morton_even(m):
+    m = m & 0x55555555
+    m = (m | (m >> 1)) & 0x33333333
+    m = (m | (m >> 2)) & 0x0F0F0F0F
+    m = (m | (m >> 4)) & 0x00FF00FF
+    return (m | (m >> 8)) & 0x0000FFFF
+
+
+def _xorshift(x):
+    x ^= (x << 13) & 0xFFFFFFFF
+    x ^= x >> 17
+    x ^= (x << 5) & 0xFFFFFFFF
+    return x
+
+
+def stat_addresses(tile_index: int, lay: Layout, stride: int, seed: int) -> np.ndarray:
+    """Addresses a tile's statistics visit: all, or one random address per run of ``stride``."""
+    total = lay.tile * lay.tile * lay.spp
+    if stride <= 1:
+        return np.arange(total)
+    state = ((seed * 0x9E3779B9) ^ ((tile_index * 0x85EBCA6B + 0x632BE5AB) & 0xFFFFFFFF))
+    state &= 0xFFFFFFFF
+    state = state or 1
+    out = []
+    for j in range(0, total, stride):
+        state = _xorshift(state)
+        out.append(j + state % min(stride, total - j))
+    return np.array(out)
+
+
+def tile_stats(depth, motion, c0, c1, kabc, lay: Layout, stride: int = 1, seed: int = 0):
+    """(tiles, NBUCKETS, NSTAT): count, sums of coc, coc^2, mx, my, mx^2, my^2, mx my."""
+    h, w, _ = depth.shape
+    ntx, nty = lay.tiles(w, h)
+    out = np.zeros((ntx * nty, lay.nbuckets, NSTAT))
+    for t in range(ntx * nty):
+        x0, y0 = (t % ntx) * lay.tile, (t // ntx) * lay.tile
+        a = stat_addresses(t, lay, stride, seed)
+        m = a // lay.spp
+        x, y = x0 + _morton_even(m), y0 + _morton_even(m >> 1)
+        ok = (x < w) & (y < h)
+        x, y, i = x[ok], y[ok], (a % lay.spp)[ok]
+        z = depth[y, x, i]
+        b = buckets(z, *kabc, lay.nbuckets)
+        coc = coc_of(z, c0, c1)
+        mv = motion[y, x, i].astype(np.float64) if lay.has_motion else np.zeros((len(z), 2))
+        vals = np.stack([np.ones_like(coc), coc, coc * coc, mv[:, 0], mv[:, 1], mv[:, 0] ** 2,
+                         mv[:, 1] ** 2, mv[:, 0] * mv[:, 1]], -1)
+        np.add.at(out[t], b, vals)
+    return out
+
+
+# -- partition_setup -------------------------------------------------------------------------
+
+def partition_filter(s, sigma_x: float, has_motion: bool = True):
+    """(sigma_u, sigma_v, cov_xx, cov_xy, cov_yy) of a partition with summed stats ``s``.
+
+    Covariance ``(c^2 / 4 + sigma_x^2) I + m m^T / 12`` (c mean CoC, m mean motion).
+    """
+    n = max(s[0], 1e-30)
+    c = s[1] / n
+    mx, my = (s[3] / n, s[4] / n) if has_motion else (0.0, 0.0)
+    iso = c * c / 4 + sigma_x ** 2
+    a = max(iso + mx * mx / 12, 1e-4)
+    b = max(iso + my * my / 12, 1e-4)
+    xy = mx * my / 12
+    h = (a + b) / 2
+    d = np.sqrt((a - b) ** 2 / 4 + xy * xy)
+    return np.sqrt(h + d), np.sqrt(max(h - d, 1e-4)), a, xy, b
+
+
+def merge_shrink(a, b, sigma_x, has_motion=True) -> float:
+    fa = partition_filter(a, sigma_x, has_motion)
+    fb = partition_filter(b, sigma_x, has_motion)
+    fm = partition_filter(a + b, sigma_x, has_motion)
+    return max(1 - fm[0] / max(fa[0], fb[0]), 1 - fm[1] / max(fa[1], fb[1]))
+
+
+def _params(s, lo, hi, sigma_x, lay: Layout):
+    su, sv, a, xy, b = partition_filter(s, sigma_x, lay.has_motion)
+    n = max(s[0], 1e-30)
+    big_a = s[1] / n
+    bx, by = (s[3] / n, s[4] / n) if lay.has_motion else (0.0, 0.0)
+    theta = 0.5 * np.arctan2(2 * xy, a - b)
+    sc = 1
+    while sc < lay.tile and int(np.ceil(3 * su / sc)) + 1 > lay.gmax:
+        sc *= 2
+    g = min(lay.gmax, int(np.ceil(3 * su / sc)) + 1)
+    shu = np.sqrt(max((a * b - xy * xy) / b / sc ** 2, 1e-8))
+    shift = abs(big_a) + 0.5 * np.hypot(bx, by)
+    p = np.zeros(NPAR)
+    p[:P_DIM + 1] = [s[0], lo, hi, big_a, bx, by, su, sv, np.cos(theta), np.sin(theta), shu,
+                     np.sqrt(b) / sc, xy / b, np.exp(-np.sqrt(2) / shu), sc, g,
+                     min(g * sc + int(np.ceil(shift)) + 1, lay.reach_max),
+                     lay.tile // sc + 2 * g]
+    return p
+
+
+def partition_setup(stats, lay: Layout, sigma_x: float = 0.33, threshold: float = 0.1):
+    """(tiles, MAXP, NPAR): merged partitions and their filters (see the kernel's header)."""
+    out = np.zeros((stats.shape[0], lay.maxp, NPAR))
+    for t, st in enumerate(stats):
+        parts, his = [], []
+        for b in range(lay.nbuckets):
+            s = st[b]
+            if not s[0] > 0:
+                continue
+            if parts and threshold >= 0 and \
+                    merge_shrink(parts[-1], s, sigma_x, lay.has_motion) <= threshold:
+                parts[-1] = parts[-1] + s
+                his[-1] = b
+                continue
+            parts.append(s.copy())
+            his.append(b)
+        while len(parts) > lay.maxp:
+            losses = [merge_shrink(parts[i], parts[i + 1], sigma_x, lay.has_motion)
+                      for i in range(len(parts) - 1)]
+            i = int(np.argmin(losses))
+            parts[i] = parts[i] + parts.pop(i + 1)
+            his[i] = his.pop(i + 1)
+        if not parts:
+            out[t, 0] = _params(np.zeros(NSTAT), 0, lay.nbuckets - 1, sigma_x, lay)
+            continue
+        his[-1] = lay.nbuckets - 1
+        for i, s in enumerate(parts):
+            out[t, i] = _params(s, 0 if i == 0 else his[i - 1] + 1, his[i], sigma_x, lay)
+    return out
+
+
+# -- reproject -------------------------------------------------------------------------------
+
+def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False):
+    """(tiles, MAXP, NCH, DMAX * DMAX): own colour/weight and behind weight per slot."""
+    color, pos, depth = fields["color"], fields["position"], fields["depth"]
+    lens, time = fields["lens"], fields["time"]
+    h, w, _ = depth.shape
+    ntx, _ = lay.tiles(w, h)
+    bk = buckets(depth, *kabc, lay.nbuckets)
+    out = np.zeros(params.shape[:2] + (NCH, lay.dmax * lay.dmax))
+    for t in range(params.shape[0]):
+        x0, y0 = (t % ntx) * lay.tile, (t // ntx) * lay.tile
+        for k in range(lay.maxp):
+            p = params[t, k]
+            dim = int(p[P_DIM])
+            if dim == 0:
+                continue
+            r = int(p[P_REACH])
+            sl = (slice(max(0, y0 - r), min(h, y0 + lay.tile + r)),
+                  slice(max(0, x0 - r), min(w, x0 + lay.tile + r)))
+            b = bk[sl].ravel()
+            keep = b >= p[P_LO]
+            own = (b <= p[P_HI])[keep]
+            # float32 in the kernel's order: the nearest grid pixel must agree
+            f32 = np.float32
+            pk = p.astype(f32)
+            q = (pos[sl].reshape(-1, 2)[keep].astype(f32)
+                 - pk[P_A] * lens[sl].reshape(-1, 2)[keep].astype(f32))
+            if lay.has_motion:
+                q = q - (time[sl].ravel()[keep, None].astype(f32) - f32(0.5)) * pk[[P_BX, P_BY]]
+            g = ((q - np.array([x0, y0], f32)) * (f32(1) / pk[P_SCALE]) + pk[P_GUARD])
+            g = g.astype(np.float64)
+            col = color[sl].reshape(-1, 3)[keep]
+            if bilinear:
+                f = g - 0.5
+                i0 = np.floor(f).astype(np.int64)
+                fr = f - i0
+                ax, ay = fr[:, 0], fr[:, 1]
+                taps = [((0, 0), (1 - ax) * (1 - ay)), ((1, 0), ax * (1 - ay)),
+                        ((0, 1), (1 - ax) * ay), ((1, 1), ax * ay)]
+            else:
+                i0 = np.floor(g).astype(np.int64)
+                taps = [((0, 0), np.ones(len(g)))]
+            grid = out[t, k]
+            for (dx, dy), wt in taps:
+                ix, iy = i0[:, 0] + dx, i0[:, 1] + dy
+                ok = (ix >= 0) & (iy >= 0) & (ix < dim) & (iy < dim)
+                if not bilinear:
+                    ok &= (g[:, 0] >= 0) & (g[:, 1] >= 0)
+                at = iy * dim + ix
+                o, bh = ok & own, ok & ~own
+                for c in range(3):
+                    np.add.at(grid[c], at[o], wt[o] * col[o, c])
+                np.add.at(grid[3], at[o], wt[o])
+                np.add.at(grid[4], at[bh], wt[bh])
+    return out
+
+
+# -- screen-space filters --------------------------------------------------------------------
+
+def filter_sheared_x(params, grids):
+    """Recursive filter along x, forward then backward, in place on a copy."""
+    out = grids.copy()
+    for t, k in zip(*np.nonzero(params[..., P_DIM])):
+        p = params[t, k]
+        dim, gm = int(p[P_DIM]), p[P_GAMMA]
+        rows = out[t, k, :, :dim * dim].reshape(NCH, dim, dim)
+        for order in (range(dim), range(dim - 1, -1, -1)):
+            y = np.zeros((NCH, dim))
+            for i in order:
+                y = (1 - gm) * rows[:, :, i] + gm * y
+                rows[:, :, i] = y
+        out[t, k, :, :dim * dim] = rows.reshape(NCH, -1)
+    return out
+
+
+def _interp_row(row, xf):
+    """Linear interpolation of (NCH, dim) rows at xf, zero outside."""
+    dim = row.shape[-1]
+    x = int(np.floor(xf))
+    f = xf - x
+    v = np.zeros(row.shape[0])
+    if 0 <= x < dim:
+        v += (1 - f) * row[:, x]
+    if 0 <= x + 1 < dim:
+        v += f * row[:, x + 1]
+    return v
+
+
+def filter_sheared_y(params, grids, lay: Layout):
+    """Gaussian along the sheared axis (beta, 1), linear in x: (tiles, MAXP, NCH, FT * FT)."""
+    ft = lay.ft
+    out = np.zeros(params.shape[:2] + (NCH, ft * ft))
+    for t, k in zip(*np.nonzero(params[..., P_DIM])):
+        p = params[t, k]
+        dim, g, sv, beta = int(p[P_DIM]), int(p[P_GUARD]), p[P_SHV], p[P_BETA]
+        side = lay.tile // int(p[P_SCALE])
+        rows = grids[t, k, :, :dim * dim].reshape(NCH, dim, dim)
+        kmax = min(int(np.ceil(3 * sv)), dim)
+        for j in range(-1, side + 1):
+            for i in range(-1, side + 1):
+                acc = np.zeros(NCH)
+                for kk in range(-kmax, kmax + 1):
+                    y = j + g + kk
+                    if 0 <= y < dim:
+                        wk = np.exp(-kk * kk / (2 * sv * sv))
+                        acc += wk * _interp_row(rows[:, y, :], i + g + beta * kk)
+                out[t, k, :, (j + 1) * ft + i + 1] = acc
+    return out
+
+
+def _bilinear(planes, x, y):
+    """Bilinear lookup of (NCH, dim, dim) planes at (x, y), zero outside."""
+    dim = planes.shape[-1]
+    ix, iy = int(np.floor(x)), int(np.floor(y))
+    ax, ay = x - ix, y - iy
+    v = np.zeros(planes.shape[0])
+    for dx, dy, wt in ((0, 0, (1 - ax) * (1 - ay)), (1, 0, ax * (1 - ay)),
+                       (0, 1, (1 - ax) * ay), (1, 1, ax * ay)):
+        if 0 <= ix + dx < dim and 0 <= iy + dy < dim:
+            v += wt * planes[:, iy + dy, ix + dx]
+    return v
+
+
+def filter_rotated(params, grids, lay: Layout):
+    """LRDM: 1D Gaussians along u then v with bilinear taps: (tmp, filtered)."""
+    ft = lay.ft
+    tmp = np.zeros_like(grids)
+    out = np.zeros(params.shape[:2] + (NCH, ft * ft))
+    for t, k in zip(*np.nonzero(params[..., P_DIM])):
+        p = params[t, k]
+        dim, s, g = int(p[P_DIM]), p[P_SCALE], p[P_GUARD]
+        side = lay.tile // int(s)
+        planes = grids[t, k, :, :dim * dim].reshape(NCH, dim, dim)
+        su, sv, c, sn = p[P_SU] / s, p[P_SV] / s, p[P_COS], p[P_SIN]
+        ku, kv = min(int(np.ceil(3 * su)), dim), min(int(np.ceil(3 * sv)), dim)
+        u = np.zeros((NCH, dim, dim))
+        for y in range(dim):
+            for x in range(dim):
+                for kk in range(-ku, ku + 1):
+                    u[:, y, x] += np.exp(-kk * kk / (2 * su * su)) * _bilinear(
+                        planes, x + kk * c, y + kk * sn)
+        tmp[t, k, :, :dim * dim] = u.reshape(NCH, -1)
+        for j in range(-1, side + 1):
+            for i in range(-1, side + 1):
+                acc = np.zeros(NCH)
+                for kk in range(-kv, kv + 1):
+                    acc += np.exp(-kk * kk / (2 * sv * sv)) * _bilinear(
+                        u, i + g - kk * sn, j + g + kk * c)
+                out[t, k, :, (j + 1) * ft + i + 1] = acc
+    return tmp, out
+
+
+# -- composite -------------------------------------------------------------------------------
+
+def composite(color, params, filtered, lay: Layout):
+    """Front-to-back compositing of each pixel's tile partitions: (H, W, 3)."""
+    h, w = color.shape[:2]
+    ntx, _ = lay.tiles(w, h)
+    ft = lay.ft
+    img = np.zeros((h, w, 3))
+    for y in range(h):
+        for x in range(w):
+            t = (y // lay.tile) * ntx + x // lay.tile
+            x0, y0 = (x // lay.tile) * lay.tile, (y // lay.tile) * lay.tile
+            acc, trans = np.zeros(3), 1.0
+            for k in range(lay.maxp):
+                p = params[t, k]
+                if p[P_DIM] == 0:
+                    break
+                s = p[P_SCALE]
+                cx, cy = (x - x0 + 0.5) / s - 0.5, (y - y0 + 0.5) / s - 0.5
+                planes = filtered[t, k].reshape(NCH, ft, ft)
+                v = _bilinear(planes, cx + 1, cy + 1)
+                cw = v[3] + v[4]
+                if not cw > 1e-6:
+                    continue
+                acc += trans * v[:3] / cw
+                trans *= v[4] / cw
+            if trans < 1 - 1e-6:
+                img[y, x] = acc / (1 - trans)
+            else:
+                img[y, x] = color[y, x].astype(np.float64).mean(0)
+    return img
+
+
+def used_grid(grids, params):
+    """The defined part of each used slot's grid, as a list of (NCH, D, D) arrays."""
+    return [grids[t, k, :, :int(params[t, k, P_DIM]) ** 2]
+            for t, k in zip(*np.nonzero(params[..., P_DIM]))]
+
+
+def used_filtered(filtered, params, lay: Layout):
+    """The defined part of each used slot's filtered planes, as (NCH, n, n) arrays."""
+    ft = lay.ft
+    out = []
+    for t, k in zip(*np.nonzero(params[..., P_DIM])):
+        n = lay.tile // int(params[t, k, P_SCALE]) + 2
+        out.append(filtered[t, k].reshape(NCH, ft, ft)[:, :n, :n])
+    return out
