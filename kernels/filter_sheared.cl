@@ -5,23 +5,37 @@
  * filter_sheared_x: one work-item per (grid row, slot), range (DMAX, tiles * MAXP); rows of
  *   empty slots and rows >= D return. In place on every channel of the row:
  *   forward  y[i] = (1 - gamma) x[i] + gamma y[i - 1]  (y[-1] = 0), then the same backward.
- *   Forward-backward has variance 2 gamma / (1 - gamma)^2 ~ s_u^2 for gamma = exp(-sqrt2/s_u).
+ *   Forward-backward has variance 2 gamma / (1 - gamma)^2; gamma is solved for variance
+ *   s_u^2 / RECURSIONS (eq. 10's exp(-sqrt2 / s_u) is its large-sigma limit). RECURSIONS > 1
+ *   repeats the pair: closer to a Gaussian than eq. 10's single pair.
  * filter_sheared_y: one work-item per filtered pixel (i, j) in [-1, T/s]^2 of a slot, range
  *   (FT, FT, tiles * MAXP): out = sum_k exp(-k^2 / (2 s_v^2)) grid(i + G + beta k, j + G + k),
  *   k = -ceil(3 s_v) .. ceil(3 s_v), linear interpolation along x, taps outside the grid
  *   dropped. Unnormalised: composite divides channels by each other.
  *   grids     float (tiles, MAXP, NCH, DMAX, DMAX), row stride D (reproject's layout)
  *   filtered  float (tiles, MAXP, NCH, FT, FT), index (j + 1) * FT + (i + 1)
- * Compile-time: TILE, MAXP, GMAX. Tunables: WG_X, WG_Y (local size of filter_sheared_y).
+ * Compile-time: TILE, MAXP, GMAX, RECURSIONS. Tunables: WG_X, WG_Y (local size of
+ * filter_sheared_y).
  */
 #include "layered.h"
 
 #ifndef WG_X
 #define WG_X 8
 #endif
+#ifndef RECURSIONS
+#define RECURSIONS 1  /* forward-backward passes along x (1: the paper's eq. 10) */
+#endif
 #ifndef WG_Y
 #define WG_Y 8
 #endif
+
+/* gamma whose forward-backward pair has variance v exactly: 2 g / (1 - g)^2 = v. For large
+ * v this is eq. 10's exp(-sqrt(2 / v)); for small v (in-focus, sigma ~ 0.33 px) eq. 10's
+ * gamma gives a far narrower filter than asked for. */
+inline float recursive_gamma(float v)
+{
+    return v > 1e-6f ? ((v + 1.0f) - sqrt(2.0f * v + 1.0f)) / v : 0.0f;
+}
 
 __kernel void filter_sheared_x(__global const float *params, __global float *grids)
 {
@@ -30,18 +44,22 @@ __kernel void filter_sheared_x(__global const float *params, __global float *gri
     const int dim = (int)p[P_DIM];
     if (row >= dim)
         return;
-    const float gm = p[P_GAMMA], a = 1.0f - gm;
+    /* RECURSIONS forward-backward passes of sigma s_u / sqrt(RECURSIONS) each */
+    const float gm = recursive_gamma(p[P_SHU] * p[P_SHU] / RECURSIONS);
+    const float a = 1.0f - gm;
     for (int c = 0; c < NCH; ++c) {
         __global float *r = grids + ((size_t)slot * NCH + c) * DMAX * DMAX + row * dim;
-        float y = 0.0f;
-        for (int i = 0; i < dim; ++i) {
-            y = a * r[i] + gm * y;
-            r[i] = y;
-        }
-        y = 0.0f;
-        for (int i = dim - 1; i >= 0; --i) {
-            y = a * r[i] + gm * y;
-            r[i] = y;
+        for (int n = 0; n < RECURSIONS; ++n) {
+            float y = 0.0f;
+            for (int i = 0; i < dim; ++i) {
+                y = a * r[i] + gm * y;
+                r[i] = y;
+            }
+            y = 0.0f;
+            for (int i = dim - 1; i >= 0; --i) {
+                y = a * r[i] + gm * y;
+                r[i] = y;
+            }
         }
     }
 }

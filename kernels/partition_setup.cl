@@ -6,8 +6,9 @@
  *   stats   float (tiles, NBUCKETS, NSTAT) from tile_stats
  *   params  float (tiles, MAXP, NPAR), layout in layered.h; unused slots get P_DIM = 0
  * Merging, front to back over populated buckets: the running partition absorbs the next one
- * when the merged filter's sigma_u and sigma_v both stay >= (1 - threshold) times the larger
- * of the two candidates' (threshold < 0: never). If more than MAXP partitions remain, the
+ * when the merged filter's sigma_u and sigma_v both stay >= (1 - threshold) times the
+ * largest of the constituent buckets' own filters and <= 1 / (1 - threshold) times the
+ * smallest (threshold < 0: never). If more than MAXP partitions remain, the
  * adjacent pair whose merge shrinks the filter least is merged until MAXP remain. Partition
  * k covers buckets (hi_{k-1}, hi_k]; the last one extends to NBUCKETS - 1, so every sample
  * has a partition. A tile without statistics gets one in-focus static partition.
@@ -50,16 +51,32 @@ inline void layered_filter(const float *s, float sx2, float *sig)
     sig[4] = b;
 }
 
-/* How much merging a and b shrinks the larger filter (0: not at all). */
-inline float layered_shrink(const float *a, const float *b, float sx2)
+/* How far the merged filter of a and b strays from the filters of their constituent buckets
+ * (ea, eb: per-axis extremes {max sigma_u, max sigma_v, min sigma_u, min sigma_v}): the larger
+ * of its relative shrink below the largest (the paper's test) and of its relative growth
+ * above the smallest (so that a few sharp samples are not absorbed into a wide filter).
+ * Judging against the constituents, not the running mean, keeps chained merges from
+ * drifting. 0: no change. */
+inline float layered_shrink(const float *a, const float *b, const float *ea, const float *eb,
+                            float sx2)
 {
-    float m[NSTAT], fa[5], fb[5], fm[5];
+    float m[NSTAT], fm[5];
     for (int k = 0; k < NSTAT; ++k)
         m[k] = a[k] + b[k];
-    layered_filter(a, sx2, fa);
-    layered_filter(b, sx2, fb);
     layered_filter(m, sx2, fm);
-    return fmax(1.0f - fm[0] / fmax(fa[0], fb[0]), 1.0f - fm[1] / fmax(fa[1], fb[1]));
+    const float shrink = fmax(1.0f - fm[0] / fmax(ea[0], eb[0]),
+                              1.0f - fm[1] / fmax(ea[1], eb[1]));
+    const float grow = fmax(1.0f - fmin(ea[2], eb[2]) / fm[0],
+                            1.0f - fmin(ea[3], eb[3]) / fm[1]);
+    return fmax(shrink, grow);
+}
+
+inline void layered_extremes(float *e, const float *f)
+{
+    e[0] = fmax(e[0], f[0]);
+    e[1] = fmax(e[1], f[1]);
+    e[2] = fmin(e[2], f[2]);
+    e[3] = fmin(e[3], f[3]);
 }
 
 inline void layered_write(__global float *p, const float *s, int lo, int hi, float sx2)
@@ -112,24 +129,31 @@ __kernel void partition_setup(__global const float *stats, const int ntiles,
     if (t >= ntiles)
         return;
     const float sx2 = sigma_x * sigma_x;
-    float part[NBUCKETS][NSTAT];
+    float part[NBUCKETS][NSTAT], big[NBUCKETS][4];
     int hi[NBUCKETS];
     int np = 0;
     __global const float *st = stats + (size_t)t * NBUCKETS * NSTAT;
     for (int b = 0; b < NBUCKETS; ++b) {
-        float s[NSTAT];
+        float s[NSTAT], f[5];
         for (int k = 0; k < NSTAT; ++k)
             s[k] = st[b * NSTAT + k];
         if (!(s[0] > 0.0f))
             continue;
-        if (np > 0 && threshold >= 0.0f && layered_shrink(part[np - 1], s, sx2) <= threshold) {
+        layered_filter(s, sx2, f);
+        f[2] = f[0];
+        f[3] = f[1];
+        if (np > 0 && threshold >= 0.0f
+            && layered_shrink(part[np - 1], s, big[np - 1], f, sx2) <= threshold) {
             for (int k = 0; k < NSTAT; ++k)
                 part[np - 1][k] += s[k];
+            layered_extremes(big[np - 1], f);
             hi[np - 1] = b;
             continue;
         }
         for (int k = 0; k < NSTAT; ++k)
             part[np][k] = s[k];
+        for (int k = 0; k < 4; ++k)
+            big[np][k] = f[k];
         hi[np] = b;
         ++np;
     }
@@ -137,7 +161,7 @@ __kernel void partition_setup(__global const float *stats, const int ntiles,
         int best = 0;
         float loss = INFINITY;
         for (int i = 0; i + 1 < np; ++i) {
-            const float l = layered_shrink(part[i], part[i + 1], sx2);
+            const float l = layered_shrink(part[i], part[i + 1], big[i], big[i + 1], sx2);
             if (l < loss) {
                 loss = l;
                 best = i;
@@ -145,10 +169,13 @@ __kernel void partition_setup(__global const float *stats, const int ntiles,
         }
         for (int k = 0; k < NSTAT; ++k)
             part[best][k] += part[best + 1][k];
+        layered_extremes(big[best], big[best + 1]);
         hi[best] = hi[best + 1];
         for (int i = best + 1; i + 1 < np; ++i) {
             for (int k = 0; k < NSTAT; ++k)
                 part[i][k] = part[i + 1][k];
+            for (int k = 0; k < 4; ++k)
+                big[i][k] = big[i + 1][k];
             hi[i] = hi[i + 1];
         }
         --np;

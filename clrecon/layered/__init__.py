@@ -84,7 +84,8 @@ class LayeredPipeline(Pipeline):
                  tile: int = 32, stats_stride: int | None = None,
                  merge_threshold: float | None = None, sigma_x: float = 0.33,
                  max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
-                 splat: str = "nearest", seed: int = 0, has_motion: bool | None = None):
+                 splat: str = "nearest", seed: int = 0, has_motion: bool | None = None,
+                 recursions: int = 3):
         super().__init__(context, info)
         if mode not in MODES:
             raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
@@ -108,6 +109,9 @@ class LayeredPipeline(Pipeline):
             raise ValueError(f"max_partitions: must be in [1, 16], got {max_partitions}")
         if int(guard) < 2:
             raise ValueError(f"guard: must be >= 2, got {guard}")
+        if not 1 <= int(recursions) <= 4:
+            raise ValueError(f"recursions: must be in [1, 4], got {recursions}")
+        self.recursions = int(recursions)
         if not bucket_coc > 0:
             raise ValueError(f"bucket_coc: must be > 0, got {bucket_coc}")
         self.mode, self.filter, self.splat = mode, filter, splat
@@ -126,7 +130,8 @@ class LayeredPipeline(Pipeline):
         self.reproject = Reproject(context, self.lay, splat == "bilinear",
                                    self._local("reproject"))
         if filter == "sheared":
-            self.filt = FilterSheared(context, self.lay, self._local("filter_sheared"))
+            self.filt = FilterSheared(context, self.lay, self.recursions,
+                                      self._local("filter_sheared"))
         else:
             self.filt = FilterRotated(context, self.lay, self._local("filter_rotated"))
         self.comp = Composite(context, self.lay, self._local("composite"))
@@ -167,6 +172,7 @@ class LayeredPipeline(Pipeline):
                 "stats_stride": self.stats_stride, "merge_threshold": self.merge_threshold,
                 "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
                 "guard": self.lay.gmax, "bucket_coc": self.bucket_coc, "splat": self.splat,
+                "recursions": self.recursions if self.filter == "sheared" else None,
                 "device_bytes": sum(self.buffer_sizes(self.info.width,
                                                       self.info.height).values()),
                 "tuning": self.tuning}

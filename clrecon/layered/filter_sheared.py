@@ -14,11 +14,15 @@ class FilterSheared:
 
     name = "filter_sheared"
 
-    def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None):
+    def __init__(self, context: cl.Context, lay: Layout, recursions: int = 1,
+                 local: LocalSize | None = None):
         self.lay = lay
         self.local = local or LocalSize(8, 8)
-        self.kx = layered_kernel(context, "filter_sheared", "filter_sheared_x", lay, self.local)
-        self.ky = layered_kernel(context, "filter_sheared", "filter_sheared_y", lay, self.local)
+        r = {"RECURSIONS": int(recursions)}
+        self.kx = layered_kernel(context, "filter_sheared", "filter_sheared_x", lay, self.local,
+                                 **r)
+        self.ky = layered_kernel(context, "filter_sheared", "filter_sheared_y", lay, self.local,
+                                 **r)
         self.events: list = []
 
     def __call__(self, queue, params: cl.Buffer, grids: cl.Buffer, filtered: cl.Buffer,

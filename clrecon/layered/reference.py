@@ -150,6 +150,7 @@ def partition_filter(s, sigma_x: float, has_motion: bool = True):
     """(sigma_u, sigma_v, cov_xx, cov_xy, cov_yy) of a partition with summed stats ``s``.
 
     Covariance ``(c^2 / 4 + sigma_x^2) I + m m^T / 12`` (c mean CoC, m mean motion).
+    Merging judges the merged filter against the constituent buckets' (no drift).
     """
     n = max(s[0], 1e-30)
     c = s[1] / n
@@ -163,11 +164,21 @@ def partition_filter(s, sigma_x: float, has_motion: bool = True):
     return np.sqrt(h + d), np.sqrt(max(h - d, 1e-4)), a, xy, b
 
 
-def merge_shrink(a, b, sigma_x, has_motion=True) -> float:
-    fa = partition_filter(a, sigma_x, has_motion)
-    fb = partition_filter(b, sigma_x, has_motion)
+def merge_shrink(a, b, ext_a, ext_b, sigma_x, has_motion=True) -> float:
+    """How far the merged filter strays from its constituent buckets' filters.
+
+    ``ext``: per-axis extremes (max sigma_u, max sigma_v, min sigma_u, min sigma_v) of the
+    buckets in a partition. The larger of the relative shrink below the largest (the paper's
+    test) and the relative growth above the smallest.
+    """
     fm = partition_filter(a + b, sigma_x, has_motion)
-    return max(1 - fm[0] / max(fa[0], fb[0]), 1 - fm[1] / max(fa[1], fb[1]))
+    shrink = max(1 - fm[0] / max(ext_a[0], ext_b[0]), 1 - fm[1] / max(ext_a[1], ext_b[1]))
+    grow = max(1 - min(ext_a[2], ext_b[2]) / fm[0], 1 - min(ext_a[3], ext_b[3]) / fm[1])
+    return max(shrink, grow)
+
+
+def _extremes(e, f):
+    return np.array([max(e[0], f[0]), max(e[1], f[1]), min(e[2], f[2]), min(e[3], f[3])])
 
 
 def _params(s, lo, hi, sigma_x, lay: Layout):
@@ -194,23 +205,27 @@ def partition_setup(stats, lay: Layout, sigma_x: float = 0.33, threshold: float 
     """(tiles, MAXP, NPAR): merged partitions and their filters (see the kernel's header)."""
     out = np.zeros((stats.shape[0], lay.maxp, NPAR))
     for t, st in enumerate(stats):
-        parts, his = [], []
+        parts, his, big = [], [], []
         for b in range(lay.nbuckets):
             s = st[b]
             if not s[0] > 0:
                 continue
+            f = np.array(partition_filter(s, sigma_x, lay.has_motion)[:2] * 2)
             if parts and threshold >= 0 and \
-                    merge_shrink(parts[-1], s, sigma_x, lay.has_motion) <= threshold:
+                    merge_shrink(parts[-1], s, big[-1], f, sigma_x, lay.has_motion) <= threshold:
                 parts[-1] = parts[-1] + s
+                big[-1] = _extremes(big[-1], f)
                 his[-1] = b
                 continue
             parts.append(s.copy())
+            big.append(f)
             his.append(b)
         while len(parts) > lay.maxp:
-            losses = [merge_shrink(parts[i], parts[i + 1], sigma_x, lay.has_motion)
-                      for i in range(len(parts) - 1)]
+            losses = [merge_shrink(parts[i], parts[i + 1], big[i], big[i + 1], sigma_x,
+                                   lay.has_motion) for i in range(len(parts) - 1)]
             i = int(np.argmin(losses))
             parts[i] = parts[i] + parts.pop(i + 1)
+            big[i] = _extremes(big[i], big.pop(i + 1))
             his[i] = his.pop(i + 1)
         if not parts:
             out[t, 0] = _params(np.zeros(NSTAT), 0, lay.nbuckets - 1, sigma_x, lay)
@@ -281,14 +296,20 @@ def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False):
 
 # -- screen-space filters --------------------------------------------------------------------
 
-def filter_sheared_x(params, grids):
-    """Recursive filter along x, forward then backward, in place on a copy."""
+def recursive_gamma(v: float) -> float:
+    """gamma with forward-backward variance 2 gamma / (1 - gamma)^2 = v (eq. 10 for v >> 1)."""
+    return ((v + 1) - np.sqrt(2 * v + 1)) / v if v > 1e-6 else 0.0
+
+
+def filter_sheared_x(params, grids, recursions: int = 1):
+    """Recursive filter along x, forward then backward (``recursions`` times), on a copy."""
     out = grids.copy()
     for t, k in zip(*np.nonzero(params[..., P_DIM])):
         p = params[t, k]
-        dim, gm = int(p[P_DIM]), p[P_GAMMA]
+        dim = int(p[P_DIM])
+        gm = recursive_gamma(p[P_SHU] ** 2 / recursions)
         rows = out[t, k, :, :dim * dim].reshape(NCH, dim, dim)
-        for order in (range(dim), range(dim - 1, -1, -1)):
+        for order in (range(dim), range(dim - 1, -1, -1)) * recursions:
             y = np.zeros((NCH, dim))
             for i in order:
                 y = (1 - gm) * rows[:, :, i] + gm * y
