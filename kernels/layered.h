@@ -14,11 +14,15 @@
  *   P_A            mean signed CoC: x' = x - A * lens - (t - 0.5) * b   (eq. 1)
  *   P_BX, P_BY     mean motion b (pixels over the shutter)
  *   P_SU, P_SV, P_COS, P_SIN   rotated Gaussian, full-resolution pixels, u along the motion
- *   P_SHU, P_SHV, P_BETA, P_GAMMA  sheared form (eq. 9) in grid pixels, recursive gamma
+ *   P_SHU, P_SHV, P_BETA, P_GAMMA  sheared form (eq. 9) in grid pixels: recursive std,
+ *                  Gaussian std, shear, eq. 10's gamma (informative; filter_sheared solves
+ *                  its own); along the axes chosen by P_AXIS
  *   P_SCALE        grid spacing s (power of two, full-res pixels per grid pixel)
  *   P_GUARD        guard band G in grid pixels; the grid of the slot is D x D, D = T/s + 2G
  *   P_REACH        how far (full-res px) outside the tile samples are gathered from
  *   P_DIM          D
+ *   P_AXIS         0: recursive along x, Gaussian along (beta, 1) (eq. 9); 1: transposed,
+ *                  recursive along y, Gaussian along (1, beta) (when S_xx > S_yy)
  * Grid pixel (i, j) of a slot is centred at full-res (x0 + (i - G + 0.5) s, ...), (x0, y0)
  * the tile corner. Grids are planar: NCH channels (r, g, b own weight w, behind weight)
  * of DMAX x DMAX floats, DMAX = TILE + 2 * GMAX.
@@ -52,7 +56,7 @@
 #define MISS_DEPTH 1e30f
 
 enum { P_COUNT, P_LO, P_HI, P_A, P_BX, P_BY, P_SU, P_SV, P_COS, P_SIN, P_SHU, P_SHV, P_BETA,
-       P_GAMMA, P_SCALE, P_GUARD, P_REACH, P_DIM };
+       P_GAMMA, P_SCALE, P_GUARD, P_REACH, P_DIM, P_AXIS };
 
 inline int layered_bucket(float w, float ka, float kb, float kc)
 {

@@ -97,8 +97,11 @@ inline void layered_write(__global float *p, const float *s, int lo, int hi, flo
         sc *= 2;
     const int g = min(GMAX, (int)ceil(3.0f * f[0] / sc) + 1);
     const float inv2 = 1.0f / (float)(sc * sc);
-    const float shv2 = f[4] * inv2;
-    const float shu2 = fmax((f[2] * f[4] - f[3] * f[3]) / f[4] * inv2, 1e-8f);
+    /* sheared form: B B^T = S with the Gaussian along the axis of larger variance */
+    const int axis = f[2] > f[4];
+    const float along = axis ? f[2] : f[4];
+    const float shv2 = along * inv2;
+    const float shu2 = fmax((f[2] * f[4] - f[3] * f[3]) / along * inv2, 1e-8f);
     const float shu = sqrt(shu2);
     const float shift = fabs(A) + 0.5f * sqrt(bx * bx + by * by);
     p[P_COUNT] = s[0];
@@ -113,12 +116,13 @@ inline void layered_write(__global float *p, const float *s, int lo, int hi, flo
     p[P_SIN] = sin(theta);
     p[P_SHU] = shu;
     p[P_SHV] = sqrt(shv2);
-    p[P_BETA] = f[3] / f[4];
+    p[P_BETA] = f[3] / along;
     p[P_GAMMA] = exp(-1.41421356f / shu);
     p[P_SCALE] = (float)sc;
     p[P_GUARD] = (float)g;
     p[P_REACH] = (float)min(g * sc + (int)ceil(shift) + 1, REACH_MAX);
     p[P_DIM] = (float)(TILE / sc + 2 * g);
+    p[P_AXIS] = (float)axis;
 }
 
 __kernel void partition_setup(__global const float *stats, const int ntiles,

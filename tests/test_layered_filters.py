@@ -3,6 +3,7 @@ against the NumPy reference, and the sheared decomposition against the rotated G
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from conftest import assert_close
 from layered_frames import LAY, empty, fields, frame, kabc, read, to_device
 from test_layered_reproject import params_of
@@ -56,12 +57,19 @@ def test_filter_rotated_matches_reference(device, rng):
                  rtol=2e-4, atol=2e-4, what="rotated")
 
 
-def test_sheared_and_rotated_agree_on_an_impulse():
+@pytest.mark.parametrize("coc,motion", [(2.0, (5.0, 3.0)), (2.0, (3.0, 5.0)),
+                                        (0.2, (12.0, 1.5)), (0.2, (1.0, -12.0))],
+                         ids=["diag", "diag-steep", "thin-shallow", "thin-steep"])
+def test_sheared_and_rotated_agree_on_an_impulse(coc, motion):
     """Both filters spread an impulse with the covariance of the partition (eq. 5 = eq. 7):
-    second moments of the filtered impulse match S within the truncation/recursion error."""
+    second moments of the filtered impulse match S within the truncation/recursion error.
+    The thin ellipses a few degrees off an axis are the case where eq. 9's form, one tap
+    per row, collapsed to a point (the transposed form is chosen there)."""
     lay = ref.Layout(tile=16, nbuckets=4, maxp=1, gmax=16, spp=1)
-    s = np.array([1, 2.0, 4.0, 5.0, 3.0, 25.0, 9.0, 15.0])  # CoC 2, motion (5, 3)
+    mx, my = motion
+    s = np.array([1, coc, coc * coc, mx, my, mx * mx, my * my, mx * my])
     p = ref._params(s, 0, 3, 0.33, lay)[None, None]
+    assert p[0, 0, ref.P_SCALE] == 1
     dim = int(p[0, 0, ref.P_DIM])
     grids = np.zeros((1, 1, ref.NCH, lay.dmax ** 2))
     grids[0, 0, 3, (dim // 2) * dim + dim // 2] = 1.0

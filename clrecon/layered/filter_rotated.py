@@ -19,6 +19,7 @@ class FilterRotated:
         self.local = local or LocalSize(8, 8)
         self.ku = layered_kernel(context, "filter_rotated", "filter_rotated_u", lay, self.local)
         self.kv = layered_kernel(context, "filter_rotated", "filter_rotated_v", lay, self.local)
+        self.kernel = self.ky if hasattr(self, "ky") else self.kv  # the one the local size tunes
         self.events: list = []
 
     def __call__(self, queue, params: cl.Buffer, grids: cl.Buffer, tmp: cl.Buffer,

@@ -14,7 +14,7 @@ class FilterSheared:
 
     name = "filter_sheared"
 
-    def __init__(self, context: cl.Context, lay: Layout, recursions: int = 1,
+    def __init__(self, context: cl.Context, lay: Layout, recursions: int = 3,
                  local: LocalSize | None = None):
         self.lay = lay
         self.local = local or LocalSize(8, 8)
@@ -23,6 +23,7 @@ class FilterSheared:
                                  **r)
         self.ky = layered_kernel(context, "filter_sheared", "filter_sheared_y", lay, self.local,
                                  **r)
+        self.kernel = self.ky if hasattr(self, "ky") else self.kv  # the one the local size tunes
         self.events: list = []
 
     def __call__(self, queue, params: cl.Buffer, grids: cl.Buffer, filtered: cl.Buffer,

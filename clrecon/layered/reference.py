@@ -18,7 +18,7 @@ NPAR = 20
 NCH = 5
 MISS_DEPTH = 1e30
 (P_COUNT, P_LO, P_HI, P_A, P_BX, P_BY, P_SU, P_SV, P_COS, P_SIN, P_SHU, P_SHV, P_BETA,
- P_GAMMA, P_SCALE, P_GUARD, P_REACH, P_DIM) = range(18)
+ P_GAMMA, P_SCALE, P_GUARD, P_REACH, P_DIM, P_AXIS) = range(19)
 
 
 @dataclass(frozen=True)
@@ -191,13 +191,15 @@ def _params(s, lo, hi, sigma_x, lay: Layout):
     while sc < lay.tile and int(np.ceil(3 * su / sc)) + 1 > lay.gmax:
         sc *= 2
     g = min(lay.gmax, int(np.ceil(3 * su / sc)) + 1)
-    shu = np.sqrt(max((a * b - xy * xy) / b / sc ** 2, 1e-8))
+    axis = int(a > b)  # the Gaussian runs along the axis of larger variance
+    along = a if axis else b
+    shu = np.sqrt(max((a * b - xy * xy) / along / sc ** 2, 1e-8))
     shift = abs(big_a) + 0.5 * np.hypot(bx, by)
     p = np.zeros(NPAR)
-    p[:P_DIM + 1] = [s[0], lo, hi, big_a, bx, by, su, sv, np.cos(theta), np.sin(theta), shu,
-                     np.sqrt(b) / sc, xy / b, np.exp(-np.sqrt(2) / shu), sc, g,
-                     min(g * sc + int(np.ceil(shift)) + 1, lay.reach_max),
-                     lay.tile // sc + 2 * g]
+    p[:P_AXIS + 1] = [s[0], lo, hi, big_a, bx, by, su, sv, np.cos(theta), np.sin(theta), shu,
+                      np.sqrt(along) / sc, xy / along, np.exp(-np.sqrt(2) / shu), sc, g,
+                      min(g * sc + int(np.ceil(shift)) + 1, lay.reach_max),
+                      lay.tile // sc + 2 * g, axis]
     return p
 
 
@@ -296,24 +298,41 @@ def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False):
 
 # -- screen-space filters --------------------------------------------------------------------
 
+def sampled_gauss_var(s: float) -> float:
+    """Variance of exp(-k^2 / (2 s^2)) sampled at the integers (s^2 for s >= 2)."""
+    if s >= 2:
+        return s * s
+    k = np.arange(1, 7)
+    w = np.exp(-k * k / (2 * s * s))
+    return float(2 * (k * k * w).sum() / (1 + 2 * w.sum()))
+
+
 def recursive_gamma(v: float) -> float:
     """gamma with forward-backward variance 2 gamma / (1 - gamma)^2 = v (eq. 10 for v >> 1)."""
     return ((v + 1) - np.sqrt(2 * v + 1)) / v if v > 1e-6 else 0.0
 
 
-def filter_sheared_x(params, grids, recursions: int = 1):
-    """Recursive filter along x, forward then backward (``recursions`` times), on a copy."""
+def _planes(grids, t, k, dim, axis):
+    """The used (NCH, dim, dim) planes of a slot, transposed for axis 1 (recursive along y)."""
+    pl = grids[t, k, :, :dim * dim].reshape(NCH, dim, dim)
+    return pl.transpose(0, 2, 1) if axis else pl
+
+
+def filter_sheared_x(params, grids, recursions: int = 3):
+    """Recursive filter along the slot's recursive axis, forward then backward."""
     out = grids.copy()
     for t, k in zip(*np.nonzero(params[..., P_DIM])):
         p = params[t, k]
-        dim = int(p[P_DIM])
-        gm = recursive_gamma(p[P_SHU] ** 2 / recursions)
-        rows = out[t, k, :, :dim * dim].reshape(NCH, dim, dim)
+        dim, axis = int(p[P_DIM]), int(p[P_AXIS])
+        gm = recursive_gamma(sampled_gauss_var(p[P_SHU]) / recursions)
+        rows = _planes(out, t, k, dim, axis).copy()  # (NCH, line, position along the line)
         for order in (range(dim), range(dim - 1, -1, -1)) * recursions:
             y = np.zeros((NCH, dim))
             for i in order:
                 y = (1 - gm) * rows[:, :, i] + gm * y
                 rows[:, :, i] = y
+        if axis:
+            rows = rows.transpose(0, 2, 1)
         out[t, k, :, :dim * dim] = rows.reshape(NCH, -1)
     return out
 
@@ -332,23 +351,26 @@ def _interp_row(row, xf):
 
 
 def filter_sheared_y(params, grids, lay: Layout):
-    """Gaussian along the sheared axis (beta, 1), linear in x: (tiles, MAXP, NCH, FT * FT)."""
+    """Gaussian along the sheared axis, linear along the recursive one: (tiles, MAXP, NCH,
+    FT * FT). Axis 1 is axis 0 on the transposed grid with i and j swapped."""
     ft = lay.ft
     out = np.zeros(params.shape[:2] + (NCH, ft * ft))
     for t, k in zip(*np.nonzero(params[..., P_DIM])):
         p = params[t, k]
         dim, g, sv, beta = int(p[P_DIM]), int(p[P_GUARD]), p[P_SHV], p[P_BETA]
+        axis = int(p[P_AXIS])
         side = lay.tile // int(p[P_SCALE])
-        rows = grids[t, k, :, :dim * dim].reshape(NCH, dim, dim)
+        rows = _planes(grids, t, k, dim, axis)
         kmax = min(int(np.ceil(3 * sv)), dim)
         for j in range(-1, side + 1):
             for i in range(-1, side + 1):
+                u, w = (j, i) if axis else (i, j)
                 acc = np.zeros(NCH)
                 for kk in range(-kmax, kmax + 1):
-                    y = j + g + kk
+                    y = w + g + kk
                     if 0 <= y < dim:
                         wk = np.exp(-kk * kk / (2 * sv * sv))
-                        acc += wk * _interp_row(rows[:, y, :], i + g + beta * kk)
+                        acc += wk * _interp_row(rows[:, y, :], u + g + beta * kk)
                 out[t, k, :, (j + 1) * ft + i + 1] = acc
     return out
 
