@@ -9,6 +9,7 @@ from layered_frames import LAY, empty, fields, frame, kabc, read, to_device
 from test_layered_reproject import params_of
 
 from clrecon.layered import reference as ref
+from clrecon.layered.filter_mip import FilterMip
 from clrecon.layered.filter_rotated import FilterRotated
 from clrecon.layered.filter_sheared import FilterSheared
 
@@ -83,3 +84,27 @@ def test_sheared_and_rotated_agree_on_an_impulse(coc, motion):
         m = im / im.sum()
         cov = [(m * xx * xx).sum(), (m * xx * yy).sum(), (m * yy * yy).sum()]
         assert_close(cov, [a, xy, b], rtol=0.15, atol=0.15, what="impulse covariance")
+
+
+def test_filter_mip_matches_reference(device, rng):
+    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
+    params, grids = inputs(rng, lay)
+    q = device.queue
+    nslots = params.shape[0] * params.shape[1]
+    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
+    filtered = empty(q, fshape)
+    fm = FilterMip(device.context, lay)
+    pyr = empty(q, (nslots, ref.NCH, fm.plane))
+    ev = fm(q, to_device(q, params), to_device(q, grids), pyr, filtered, nslots)
+    got = read(q, filtered, fshape, [ev])
+    want = ref.filter_mip(params.astype(np.float64), grids, lay)
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
+                 rtol=2e-4, atol=2e-4, what="mip")
+
+
+def test_mip_pyramid_keeps_the_mean():
+    planes = np.random.default_rng(3).uniform(size=(ref.NCH, 16, 16))
+    levels = ref.mip_pyramid(planes)
+    assert [lv.shape[-1] for lv in levels] == [16, 8, 4, 2, 1]
+    assert_close([lv.mean() for lv in levels], [planes.mean()] * 5, rtol=1e-12, what="mean")

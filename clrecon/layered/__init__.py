@@ -62,15 +62,16 @@ import pyopencl as cl
 
 from ..pipeline import DeviceSamples, LocalSize, Pipeline, register
 from .composite import Composite
+from .filter_mip import FilterMip
 from .filter_rotated import FilterRotated
 from .filter_sheared import FilterSheared
 from .partition_setup import PartitionSetup
-from .reference import NCH, NPAR, NSTAT, Layout, bucket_params
+from .reference import NCH, NPAR, NSTAT, Layout, bucket_params, mip_levels
 from .reproject import Reproject
 from .tile_stats import TileStats
 
 MODES = ("practical", "lrdm")
-FILTERS = ("sheared", "rotated")
+FILTERS = ("sheared", "mip", "rotated")
 SPLATS = ("nearest", "bilinear")
 NBUCKETS = 32
 
@@ -132,6 +133,8 @@ class LayeredPipeline(Pipeline):
         if filter == "sheared":
             self.filt = FilterSheared(context, self.lay, self.recursions,
                                       self._local("filter_sheared"))
+        elif filter == "mip":
+            self.filt = FilterMip(context, self.lay, self._local("filter_mip"))
         else:
             self.filt = FilterRotated(context, self.lay, self._local("filter_rotated"))
         self.comp = Composite(context, self.lay, self._local("composite"))
@@ -159,6 +162,8 @@ class LayeredPipeline(Pipeline):
                  "filtered": slots * NCH * lay.ft ** 2 * 4}
         if self.filter == "rotated":
             sizes["tmp"] = sizes["grids"]
+        if self.filter == "mip":
+            sizes["pyramid"] = slots * NCH * mip_levels(lay.dmax)[1] * 4
         return sizes
 
     def _alloc(self, width: int, height: int) -> None:
@@ -198,6 +203,9 @@ class LayeredPipeline(Pipeline):
         nslots = ntx * nty * self.lay.maxp
         if self.filter == "sheared":
             ev = self.filt(queue, b["params"], b["grids"], b["filtered"], nslots, [ev])
+        elif self.filter == "mip":
+            ev = self.filt(queue, b["params"], b["grids"], b["pyramid"], b["filtered"], nslots,
+                           [ev])
         else:
             ev = self.filt(queue, b["params"], b["grids"], b["tmp"], b["filtered"], nslots,
                            [ev])

@@ -417,6 +417,76 @@ def filter_rotated(params, grids, lay: Layout):
     return tmp, out
 
 
+MIP_ALPHA, MIP_D, MAX_ANISO = 2.24, 0.33, 16
+
+
+def mip_levels(dmax: int) -> tuple[int, int]:
+    """(levels including level 0, floats per channel plane of levels 1..) for a DMAX grid."""
+    nlev, side, plane = 1, dmax, 0
+    while side > 1:
+        side = -(-side // 2)
+        plane += side * side
+        nlev += 1
+    return nlev, max(plane, 1)
+
+
+def mip_pyramid(planes):
+    """Levels 0.. of (NCH, d, d) planes: 2x2 means, missing texels count as 0."""
+    levels = [planes]
+    while levels[-1].shape[-1] > 1:
+        a = levels[-1]
+        d = a.shape[-1]
+        e = -(-d // 2)
+        pad = np.zeros(a.shape[:1] + (2 * e, 2 * e))
+        pad[:, :d, :d] = a
+        levels.append(0.25 * pad.reshape(a.shape[0], e, 2, e, 2).sum((2, 4)))
+    return levels
+
+
+def _mip_lookup(levels, lod, x, y):
+    nlev = len(levels)
+    lod = min(max(lod, 0.0), nlev - 1)
+    lv = min(int(lod), max(nlev - 2, 0))
+    f = lod - lv if nlev > 1 else 0.0
+    v = np.zeros(levels[0].shape[0])
+    for l, wt in ((lv, 1 - f), (lv + 1, f)):
+        if wt == 0 or l >= nlev:
+            continue
+        sc = 2.0 ** l
+        v += wt * _bilinear(levels[l], (x - 0.5 * (sc - 1)) / sc, (y - 0.5 * (sc - 1)) / sc)
+    return v
+
+
+def filter_mip(params, grids, lay: Layout):
+    """Four taps of trilinear probes along the major axis (see kernels/filter_mip.cl)."""
+    ft = lay.ft
+    nlev, _ = mip_levels(lay.dmax)
+    out = np.zeros(params.shape[:2] + (NCH, ft * ft))
+    for t, k in zip(*np.nonzero(params[..., P_DIM])):
+        p = params[t, k]
+        dim, s, g = int(p[P_DIM]), p[P_SCALE], p[P_GUARD]
+        side = lay.tile // int(s)
+        levels = mip_pyramid(grids[t, k, :, :dim * dim].reshape(NCH, dim, dim))[:nlev]
+        su, sv = p[P_SU] / s, p[P_SV] / s
+        eu, ev = np.array([p[P_COS], p[P_SIN]]), np.array([-p[P_SIN], p[P_COS]])
+        tsu, tsv = (MIP_ALPHA - MIP_D) / MIP_ALPHA * su, (MIP_ALPHA - MIP_D) / MIP_ALPHA * sv
+        n = int(np.clip(np.ceil(tsu / max(tsv, 1e-3)), 1, MAX_ANISO))
+        minor = max(tsv, tsu / MAX_ANISO)
+        lod = np.log2(max(MIP_ALPHA * minor, 1.0))
+        half = np.sqrt(max(3 * (tsu * tsu - minor * minor), 0.0))
+        offs = [MIP_D * su * eu, -MIP_D * su * eu, MIP_D * sv * ev, -MIP_D * sv * ev]
+        for j in range(-1, side + 1):
+            for i in range(-1, side + 1):
+                acc = np.zeros(NCH)
+                for o in offs:
+                    for m in range(n):
+                        along = half * (2 * (m + 0.5) / n - 1) if n > 1 else 0.0
+                        q = np.array([i + g, j + g]) + o + along * eu
+                        acc += _mip_lookup(levels, lod, q[0], q[1])
+                out[t, k, :, (j + 1) * ft + i + 1] = acc / n
+    return out
+
+
 # -- composite -------------------------------------------------------------------------------
 
 def composite(color, params, filtered, lay: Layout):

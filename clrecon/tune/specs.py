@@ -284,6 +284,17 @@ def _filter_rotated_runner(dev, w, h, spp):
                       (nt, lay.maxp, 5, lay.ft ** 2), _wg)
 
 
+def _filter_mip_runner(dev, w, h, spp):
+    from ..layered.filter_mip import FilterMip
+
+    pipe, s, nt = _layered_inputs(dev, w, h, spp, filter="mip")
+    lay, b = pipe.lay, pipe.buffers
+    return PassRunner(dev, lambda c: FilterMip(dev.context, lay, local_size_of(c)),
+                      lambda p, q, out: p(q, b["params"], b["grids"], b["pyramid"], out,
+                                          nt * lay.maxp),
+                      (nt, lay.maxp, 5, lay.ft ** 2), _wg)
+
+
 def _composite_runner(dev, w, h, spp):
     from ..layered.composite import Composite
 
@@ -323,6 +334,8 @@ SPECS: dict[str, PassSpec] = {s.name: s for s in (
              _filter_sheared_runner, rtol=1e-4, atol=1e-5),
     PassSpec("filter_rotated", "filter_rotated", {"wg_x": 8, "wg_y": 8}, local_candidates,
              _filter_rotated_runner, rtol=1e-4, atol=1e-5),
+    PassSpec("filter_mip", "filter_mip", {"wg_x": 8, "wg_y": 8}, local_candidates,
+             _filter_mip_runner, rtol=1e-4, atol=1e-5),
     PassSpec("composite", "composite", DEFAULT_LOCAL, local_candidates, _composite_runner,
              rtol=1e-5, atol=1e-6),
 )}
