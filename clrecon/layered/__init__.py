@@ -74,6 +74,7 @@ MODES = ("practical", "lrdm")
 FILTERS = ("sheared", "mip", "rotated")
 SPLATS = ("nearest", "bilinear")
 NBUCKETS = 32
+STATIC_COC = 0.5  # px: below this everywhere (and no motion) the frame is reconstructed by box
 
 
 @register
@@ -86,7 +87,7 @@ class LayeredPipeline(Pipeline):
                  merge_threshold: float | None = None, sigma_x: float = 0.33,
                  max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
                  splat: str = "nearest", seed: int = 0, has_motion: bool | None = None,
-                 recursions: int = 3):
+                 recursions: int = 3, specialize: bool = True):
         super().__init__(context, info)
         if mode not in MODES:
             raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
@@ -126,6 +127,17 @@ class LayeredPipeline(Pipeline):
         self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
                           spp=info.spp, has_motion=motion)
         self.tuning: dict[str, str] = {}
+        # a static frame whose blur stays inside the pixel (|coc| < 0.5 px) has nothing to
+        # reconstruct beyond the pixel filter: it costs, and is, a box filter
+        self.box = None
+        if specialize and not info.has_motion and info.max_abs_coc < STATIC_COC:
+            from ..box import Box
+
+            self.fields = ("color",)
+            self.box = Box(context, self._local("box"))
+        if self.box is not None:
+            self.buffers = {}
+            return
         self.stats_pass = TileStats(context, self.lay, self._local("tile_stats"))
         self.setup = PartitionSetup(context, self.lay, self._local("partition_setup"))
         self.reproject = Reproject(context, self.lay, splat == "bilinear",
@@ -153,6 +165,8 @@ class LayeredPipeline(Pipeline):
 
     def buffer_sizes(self, width: int, height: int) -> dict[str, int]:
         """Bytes of each temporary this plan allocates for a ``width x height`` frame."""
+        if self.box is not None:
+            return {}
         lay = self.lay
         ntx, nty = lay.tiles(width, height)
         slots = ntx * nty * lay.maxp
@@ -173,7 +187,8 @@ class LayeredPipeline(Pipeline):
 
     def describe(self) -> dict:
         return {"method": "layered", "mode": self.mode, "filter": self.filter,
-                "defocus_only": not self.lay.has_motion, "tile": self.lay.tile,
+                "defocus_only": not self.lay.has_motion,
+                "static_focus": self.box is not None, "tile": self.lay.tile,
                 "stats_stride": self.stats_stride, "merge_threshold": self.merge_threshold,
                 "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
                 "guard": self.lay.gmax, "bucket_coc": self.bucket_coc, "splat": self.splat,
@@ -189,6 +204,10 @@ class LayeredPipeline(Pipeline):
 
     def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
         w, h = samples.width, samples.height
+        if self.box is not None:
+            ev = self.box(queue, samples["color"], out, w, h, samples.spp, wait_for)
+            self.events.append(("box", ev))
+            return ev
         ntx, nty = self.lay.tiles(w, h)
         b = self.buffers
         kabc = self.bucket_params(samples)

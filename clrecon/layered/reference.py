@@ -534,3 +534,30 @@ def used_filtered(filtered, params, lay: Layout):
         n = lay.tile // int(params[t, k, P_SCALE]) + 2
         out.append(filtered[t, k].reshape(NCH, ft, ft)[:, :n, :n])
     return out
+
+
+def reconstruct(buf, tile: int = 32, stats_stride: int = 1, merge_threshold: float = 0.1,
+                sigma_x: float = 0.33, max_partitions: int = 4, guard: int = 16,
+                filter: str = "sheared", recursions: int = 3, seed: int = 0,
+                bucket_coc: float = 0.5, splat: str = "nearest", nbuckets: int = 32):
+    """The whole method in NumPy (slow: for small frames). Parameters as the pipeline's."""
+    info = buf.inspect()
+    sig = np.sqrt(info.max_abs_coc ** 2 / 4 + info.max_abs_motion ** 2 / 12 + sigma_x ** 2)
+    gmax = max(2, min(guard, int(np.ceil(3 * sig)) + 1))
+    lay = Layout(tile=tile, nbuckets=nbuckets, maxp=max_partitions, gmax=gmax, spp=buf.spp,
+                 has_motion=info.has_motion)
+    c0, c1 = buf.coc_model.c0, buf.coc_model.c1
+    kabc = bucket_params(c0, c1, info.min_depth, info.max_depth, nbuckets, bucket_coc)
+    stats = tile_stats(buf.depth, buf.motion, c0, c1, kabc, lay, stats_stride, seed)
+    params = partition_setup(stats.astype(np.float32).astype(np.float64), lay, sigma_x,
+                             merge_threshold)
+    params = params.astype(np.float32).astype(np.float64)
+    f = {k: getattr(buf, k) for k in ("color", "position", "depth", "lens", "time")}
+    grids = reproject(f, params, kabc, lay, splat == "bilinear")
+    if filter == "sheared":
+        filtered = filter_sheared_y(params, filter_sheared_x(params, grids, recursions), lay)
+    elif filter == "mip":
+        filtered = filter_mip(params, grids, lay)
+    else:
+        filtered = filter_rotated(params, grids, lay)[1]
+    return composite(buf.color, params, filtered, lay)
