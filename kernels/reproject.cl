@@ -9,12 +9,13 @@
  * behind it (b > hi) adds 1 to channel 4 ("behind"); samples in front are skipped. The
  * sample lands at x' = position - A * lens - (t - 0.5) * b, grid coordinate
  * (x' - x0) / s + G - 0.5; nearest grid pixel, or bilinear weights with SPLAT_BILINEAR.
- * Grid pixels outside [0, D) are dropped.
+ * Grid pixels outside [0, D) are dropped. With SUBSAMPLE (default), a slot on a grid of
+ * spacing s > 1 reads one hashed pixel per s x s block (see below).
  *   inputs  SoA sample fields (color, position, depth, lens, time); params from
  *           partition_setup; grids float (tiles, MAXP, NCH, DMAX, DMAX), row stride D.
  * With WG_X > 1 work-items scatter with atomic_add_f32 (common.h); with WG_X == 1 the one
  * work-item owns the grid and adds plainly (no atomics, deterministic order).
- * Compile-time: SPP, TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, SPLAT_BILINEAR.
+ * Compile-time: SPP, TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, SPLAT_BILINEAR, SUBSAMPLE.
  * Tunables: WG_X (work-group size, the host launches with it).
  */
 #include "common.h"
@@ -29,6 +30,18 @@
 #ifndef SPLAT_BILINEAR
 #define SPLAT_BILINEAR 0
 #endif
+#ifndef SUBSAMPLE
+#define SUBSAMPLE 1
+#endif
+
+inline uint block_hash(int cx, int cy, int sub)
+{
+    uint h = ((uint)cx * 0x8da6b343u) ^ ((uint)cy * 0xd8163841u) ^ ((uint)sub * 0xcb1ab31fu);
+    h ^= h >> 13;
+    h *= 0x85ebca6bu;
+    h ^= h >> 16;
+    return h;
+}
 
 #if WG_X > 1
 #define GRID_ADD(p, v) atomic_add_f32((volatile __global float *)(p), (v))
@@ -76,9 +89,24 @@ void reproject(__global const float *color, __global const float *position,
     const float2 bm = (float2)(p[P_BX], p[P_BY]);
     const int ax = max(0, x0 - reach), bx = min(width, x0 + TILE + reach);
     const int ay = max(0, y0 - reach), by = min(height, y0 + TILE + reach);
-    const int rw = bx - ax, n = rw * max(by - ay, 0);
+    /* SUBSAMPLE: a slot on a grid of spacing s > 1 gathers one pixel (all its samples) per
+     * s x s block of the image, the pixel picked by a hash of the block (the same in every
+     * tile); the slot's channels are divided by each other, so the common weight s^2 of the
+     * kept samples cancels */
+    const int sub = SUBSAMPLE ? (int)p[P_SCALE] : 1;
+    const int cx0 = ax / sub, cy0 = ay / sub;
+    const int nbw = (bx + sub - 1) / sub - cx0, nbh = (by + sub - 1) / sub - cy0;
+    const int n = ax < bx && ay < by ? nbw * nbh : 0;
     for (int k = lid; k < n; k += WG_X) {
-        const int px = ax + k % rw, py = ay + k / rw;
+        const int cx = cx0 + k % nbw, cy = cy0 + k / nbw;
+        int px = cx * sub, py = cy * sub;
+        if (sub > 1) {
+            const uint h = block_hash(cx, cy, sub);
+            px += (int)(h % (uint)sub);
+            py += (int)((h >> 16) % (uint)sub);
+        }
+        if (px < ax || px >= bx || py < ay || py >= by)
+            continue;
         const size_t base = ((size_t)py * width + px) * SPP;
         for (int i = 0; i < SPP; ++i) {
             const size_t si = base + i;

@@ -17,22 +17,25 @@ def params_of(buf, lay, threshold=0.1, sigma_x=0.33):
     return ref.partition_setup(st, lay, sigma_x, threshold).astype(np.float32)
 
 
-@pytest.mark.parametrize("bilinear,wg,motion", [(False, 1, True), (True, 1, True),
-                                                (False, 16, True), (True, 8, False)],
-                         ids=["nearest", "bilinear", "nearest-atomic", "bilinear-atomic-nomo"])
-def test_reproject_matches_reference(device, rng, bilinear, wg, motion):
+@pytest.mark.parametrize("bilinear,wg,motion,sub", [(False, 1, True, True), (True, 1, True, True),
+                                                    (False, 16, True, True),
+                                                    (True, 8, False, True),
+                                                    (False, 1, True, False)],
+                         ids=["nearest", "bilinear", "nearest-atomic", "bilinear-atomic-nomo",
+                              "no-subsample"])
+def test_reproject_matches_reference(device, rng, bilinear, wg, motion, sub):
     buf = frame(rng, motion=motion)
     lay = ref.Layout(**{**LAY.__dict__, "has_motion": motion})
     params = params_of(buf, lay)
-    assert (params[..., ref.P_SCALE] > 1).any() or True
+    assert (params[..., ref.P_SCALE] > 1).any()  # coarse grids (and subsampling) occur
     q = device.queue
     shape = params.shape[:2] + (ref.NCH, lay.dmax * lay.dmax)
     grids = empty(q, shape)
     k = kabc(buf, lay)
-    ev = Reproject(device.context, lay, bilinear, LocalSize(wg, 1))(
+    ev = Reproject(device.context, lay, bilinear, LocalSize(wg, 1), sub)(
         q, upload(q, buf), k, to_device(q, params), grids)
     got = read(q, grids, shape, [ev])
-    want = ref.reproject(fields(buf), params.astype(np.float64), k, lay, bilinear)
+    want = ref.reproject(fields(buf), params.astype(np.float64), k, lay, bilinear, sub)
     g, w = ref.used_grid(got, params), ref.used_grid(want, params)
     assert sum(x[4].sum() for x in w) > 0 and sum(x[3].sum() for x in w) > 0
     # own weight: every sample of the tile lands in exactly one slot of its tile (or the band)

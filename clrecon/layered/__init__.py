@@ -87,7 +87,8 @@ class LayeredPipeline(Pipeline):
                  merge_threshold: float | None = None, sigma_x: float = 0.33,
                  max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
                  splat: str = "nearest", seed: int = 0, has_motion: bool | None = None,
-                 recursions: int = 3, specialize: bool = True):
+                 recursions: int = 3, specialize: bool = True, reach: int = 96,
+                 subsample: bool = True):
         super().__init__(context, info)
         if mode not in MODES:
             raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
@@ -124,8 +125,10 @@ class LayeredPipeline(Pipeline):
         sig = math.sqrt(info.max_abs_coc ** 2 / 4 + info.max_abs_motion ** 2 / 12
                         + sigma_x ** 2)
         gmax = max(2, min(int(guard), math.ceil(3 * sig) + 1))
+        if int(reach) < 1:
+            raise ValueError(f"reach: must be >= 1, got {reach}")
         self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
-                          spp=info.spp, has_motion=motion)
+                          spp=info.spp, has_motion=motion, reach_max=int(reach))
         self.tuning: dict[str, str] = {}
         # a static frame whose blur stays inside the pixel (|coc| < 0.5 px) has nothing to
         # reconstruct beyond the pixel filter: it costs, and is, a box filter
@@ -140,8 +143,9 @@ class LayeredPipeline(Pipeline):
             return
         self.stats_pass = TileStats(context, self.lay, self._local("tile_stats"))
         self.setup = PartitionSetup(context, self.lay, self._local("partition_setup"))
+        self.subsample = bool(subsample)
         self.reproject = Reproject(context, self.lay, splat == "bilinear",
-                                   self._local("reproject"))
+                                   self._local("reproject"), self.subsample)
         if filter == "sheared":
             self.filt = FilterSheared(context, self.lay, self.recursions,
                                       self._local("filter_sheared"))
@@ -191,7 +195,9 @@ class LayeredPipeline(Pipeline):
                 "static_focus": self.box is not None, "tile": self.lay.tile,
                 "stats_stride": self.stats_stride, "merge_threshold": self.merge_threshold,
                 "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
-                "guard": self.lay.gmax, "bucket_coc": self.bucket_coc, "splat": self.splat,
+                "guard": self.lay.gmax, "reach": self.lay.reach_max,
+                "bucket_coc": self.bucket_coc, "splat": self.splat,
+                "subsample": getattr(self, "subsample", None),
                 "recursions": self.recursions if self.filter == "sheared" else None,
                 "device_bytes": sum(self.buffer_sizes(self.info.width,
                                                       self.info.height).values()),

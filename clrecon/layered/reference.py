@@ -240,7 +240,20 @@ def partition_setup(stats, lay: Layout, sigma_x: float = 0.33, threshold: float 
 
 # -- reproject -------------------------------------------------------------------------------
 
-def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False):
+def block_hash(cx, cy, sub):
+    """The kernel's uint32 hash of an s x s block (vectorised)."""
+    m = np.uint64(0xFFFFFFFF)
+    cx, cy = np.asarray(cx, np.uint64), np.asarray(cy, np.uint64)
+    h = ((cx * np.uint64(0x8DA6B343)) & m) ^ ((cy * np.uint64(0xD8163841)) & m) \
+        ^ np.uint64((sub * 0xCB1AB31F) & 0xFFFFFFFF)
+    h ^= h >> np.uint64(13)
+    h = (h * np.uint64(0x85EBCA6B)) & m
+    h ^= h >> np.uint64(16)
+    return h
+
+
+def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False,
+              subsample: bool = True):
     """(tiles, MAXP, NCH, DMAX * DMAX): own colour/weight and behind weight per slot."""
     color, pos, depth = fields["color"], fields["position"], fields["depth"]
     lens, time = fields["lens"], fields["time"]
@@ -260,6 +273,12 @@ def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False):
                   slice(max(0, x0 - r), min(w, x0 + lay.tile + r)))
             b = bk[sl].ravel()
             keep = b >= p[P_LO]
+            sub = int(p[P_SCALE]) if subsample else 1
+            if sub > 1:  # one hashed pixel per sub x sub block (kernels/reproject.cl)
+                ys, xs = np.mgrid[sl]
+                hh = block_hash(xs // sub, ys // sub, sub)
+                pick = (xs % sub == hh % sub) & (ys % sub == (hh >> 16) % sub)
+                keep &= np.repeat(pick.ravel(), depth.shape[2])
             own = (b <= p[P_HI])[keep]
             # float32 in the kernel's order: the nearest grid pixel must agree
             f32 = np.float32
@@ -539,7 +558,8 @@ def used_filtered(filtered, params, lay: Layout):
 def reconstruct(buf, tile: int = 32, stats_stride: int = 1, merge_threshold: float = 0.1,
                 sigma_x: float = 0.33, max_partitions: int = 4, guard: int = 16,
                 filter: str = "sheared", recursions: int = 3, seed: int = 0,
-                bucket_coc: float = 0.5, splat: str = "nearest", nbuckets: int = 32):
+                bucket_coc: float = 0.5, splat: str = "nearest", nbuckets: int = 32,
+                subsample: bool = True):
     """The whole method in NumPy (slow: for small frames). Parameters as the pipeline's."""
     info = buf.inspect()
     sig = np.sqrt(info.max_abs_coc ** 2 / 4 + info.max_abs_motion ** 2 / 12 + sigma_x ** 2)
@@ -553,7 +573,7 @@ def reconstruct(buf, tile: int = 32, stats_stride: int = 1, merge_threshold: flo
                              merge_threshold)
     params = params.astype(np.float32).astype(np.float64)
     f = {k: getattr(buf, k) for k in ("color", "position", "depth", "lens", "time")}
-    grids = reproject(f, params, kabc, lay, splat == "bilinear")
+    grids = reproject(f, params, kabc, lay, splat == "bilinear", subsample)
     if filter == "sheared":
         filtered = filter_sheared_y(params, filter_sheared_x(params, grids, recursions), lay)
     elif filter == "mip":

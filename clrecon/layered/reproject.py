@@ -16,12 +16,13 @@ class Reproject:
     name = "reproject"
 
     def __init__(self, context: cl.Context, lay: Layout, bilinear: bool = False,
-                 local: LocalSize | None = None):
+                 local: LocalSize | None = None, subsample: bool = True):
         self.lay = lay
         wg = local.x if local and local.x else 1
         self.local = LocalSize(wg, 1)
         self.kernel = layered_kernel(context, "reproject", "reproject", lay, self.local,
-                                     SPLAT_BILINEAR=bool(bilinear))
+                                     SPLAT_BILINEAR=bool(bilinear),
+                                     SUBSAMPLE=bool(subsample))
 
     def __call__(self, queue, samples: DeviceSamples, kabc, params: cl.Buffer,
                  grids: cl.Buffer, wait_for=None) -> cl.Event:

@@ -223,6 +223,12 @@ def _layered_inputs(dev, w, h, spp, **knobs):
     return pipe, s, ntx * nty
 
 
+def _zero(queue, buf):
+    """Clear an output the pass writes only in part (unwritten garbage may hold NaNs, which
+    would fail verification); untimed: the runner times the pass's own event."""
+    return cl.enqueue_fill_buffer(queue, buf, np.float32(0), 0, buf.size)
+
+
 def _tile_stats_runner(dev, w, h, spp):
     from ..layered.tile_stats import TileStats
 
@@ -249,7 +255,7 @@ def _reproject_runner(dev, w, h, spp):
     pipe, s, nt = _layered_inputs(dev, w, h, spp)
     lay, kabc, par = pipe.lay, pipe.bucket_params(s), pipe.buffers["params"]
     return PassRunner(dev, lambda c: Reproject(dev.context, lay, False, local_size_of(c)),
-                      lambda p, q, out: p(q, s, kabc, par, out),
+                      lambda p, q, out: p(q, s, kabc, par, out, [_zero(q, out)]),
                       (nt, lay.maxp, 5, lay.dmax ** 2), _wg)
 
 
@@ -266,7 +272,7 @@ def _filter_sheared_runner(dev, w, h, spp):
 
     def launch(p, q, out):
         ev = cl.enqueue_copy(q, work, src)
-        return p(q, par, work, out, nt * lay.maxp, [ev])
+        return p(q, par, work, out, nt * lay.maxp, [ev, _zero(q, out)])
 
     return PassRunner(dev, lambda c: FilterSheared(dev.context, lay, pipe.recursions,
                                                    local_size_of(c)),
@@ -280,7 +286,7 @@ def _filter_rotated_runner(dev, w, h, spp):
     lay, b = pipe.lay, pipe.buffers
     return PassRunner(dev, lambda c: FilterRotated(dev.context, lay, local_size_of(c)),
                       lambda p, q, out: p(q, b["params"], b["grids"], b["tmp"], out,
-                                          nt * lay.maxp),
+                                          nt * lay.maxp, [_zero(q, out)]),
                       (nt, lay.maxp, 5, lay.ft ** 2), _wg)
 
 
@@ -291,7 +297,7 @@ def _filter_mip_runner(dev, w, h, spp):
     lay, b = pipe.lay, pipe.buffers
     return PassRunner(dev, lambda c: FilterMip(dev.context, lay, local_size_of(c)),
                       lambda p, q, out: p(q, b["params"], b["grids"], b["pyramid"], out,
-                                          nt * lay.maxp),
+                                          nt * lay.maxp, [_zero(q, out)]),
                       (nt, lay.maxp, 5, lay.ft ** 2), _wg)
 
 
