@@ -70,18 +70,22 @@ __kernel void filter_sheared_x(__global const float *params, __global float *gri
     const int start = p[P_AXIS] == 0.0f ? line * dim : line;
     const float gm = recursive_gamma(sampled_gauss_var(p[P_SHU]) / RECURSIONS);
     const float a = 1.0f - gm;
-    for (int c = 0; c < NCH; ++c) {
-        __global float *r = grids + ((size_t)slot * NCH + c) * DMAX * DMAX + start;
-        for (int n = 0; n < RECURSIONS; ++n) {
-            float y = 0.0f;
-            for (int i = 0; i < dim; ++i) {
-                y = a * r[i * along] + gm * y;
-                r[i * along] = y;
+    /* the NCH channels run side by side: independent recursions the CPU can overlap */
+    __global float *r = grids + (size_t)slot * NCH * DMAX * DMAX + start;
+    for (int n = 0; n < RECURSIONS; ++n) {
+        float y[NCH] = {0.0f};
+        for (int i = 0; i < dim; ++i) {
+            for (int c = 0; c < NCH; ++c) {
+                y[c] = a * r[c * DMAX * DMAX + i * along] + gm * y[c];
+                r[c * DMAX * DMAX + i * along] = y[c];
             }
-            y = 0.0f;
-            for (int i = dim - 1; i >= 0; --i) {
-                y = a * r[i * along] + gm * y;
-                r[i * along] = y;
+        }
+        for (int c = 0; c < NCH; ++c)
+            y[c] = 0.0f;
+        for (int i = dim - 1; i >= 0; --i) {
+            for (int c = 0; c < NCH; ++c) {
+                y[c] = a * r[c * DMAX * DMAX + i * along] + gm * y[c];
+                r[c * DMAX * DMAX + i * along] = y[c];
             }
         }
     }

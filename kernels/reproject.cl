@@ -10,7 +10,7 @@
  * sample lands at x' = position - A * lens - (t - 0.5) * b, grid coordinate
  * (x' - x0) / s + G - 0.5; nearest grid pixel, or bilinear weights with SPLAT_BILINEAR.
  * Grid pixels outside [0, D) are dropped. With SUBSAMPLE (default), a slot on a grid of
- * spacing s > 1 reads one hashed pixel per s x s block (see below).
+ * spacing s > 1 reads one hashed pixel per min(s, 4)^2 block (see below).
  *   inputs  SoA sample fields (color, position, depth, lens, time); params from
  *           partition_setup; grids float (tiles, MAXP, NCH, DMAX, DMAX), row stride D.
  * With WG_X > 1 work-items scatter with atomic_add_f32 (common.h); with WG_X == 1 the one
@@ -33,6 +33,7 @@
 #ifndef SUBSAMPLE
 #define SUBSAMPLE 1
 #endif
+#define SUBSAMPLE_MAX 4
 
 inline uint block_hash(int cx, int cy, int sub)
 {
@@ -90,10 +91,11 @@ void reproject(__global const float *color, __global const float *position,
     const int ax = max(0, x0 - reach), bx = min(width, x0 + TILE + reach);
     const int ay = max(0, y0 - reach), by = min(height, y0 + TILE + reach);
     /* SUBSAMPLE: a slot on a grid of spacing s > 1 gathers one pixel (all its samples) per
-     * s x s block of the image, the pixel picked by a hash of the block (the same in every
-     * tile); the slot's channels are divided by each other, so the common weight s^2 of the
-     * kept samples cancels */
-    const int sub = SUBSAMPLE ? (int)p[P_SCALE] : 1;
+     * b x b block of the image, b = min(s, SUBSAMPLE_MAX), the pixel picked by a hash of the
+     * block (the same in every tile); the slot's channels are divided by each other, so the
+     * common weight b^2 of the kept samples cancels. The cap keeps >= (s / 4)^2 pixels per
+     * grid pixel on very coarse grids (1 per grid pixel lost 0.6 dB on 280 px motion). */
+    const int sub = SUBSAMPLE ? min((int)p[P_SCALE], SUBSAMPLE_MAX) : 1;
     const int cx0 = ax / sub, cy0 = ay / sub;
     const int nbw = (bx + sub - 1) / sub - cx0, nbh = (by + sub - 1) / sub - cy0;
     const int n = ax < bx && ay < by ? nbw * nbh : 0;

@@ -273,7 +273,7 @@ def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False,
                   slice(max(0, x0 - r), min(w, x0 + lay.tile + r)))
             b = bk[sl].ravel()
             keep = b >= p[P_LO]
-            sub = int(p[P_SCALE]) if subsample else 1
+            sub = min(int(p[P_SCALE]), 4) if subsample else 1
             if sub > 1:  # one hashed pixel per sub x sub block (kernels/reproject.cl)
                 ys, xs = np.mgrid[sl]
                 hh = block_hash(xs // sub, ys // sub, sub)
