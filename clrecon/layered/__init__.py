@@ -4,15 +4,18 @@
 Plan (passes; knobs in brackets)::
 
     tile_stats [tile, stats_stride, seed, bucket_coc]
-      -> partition_setup [merge_threshold, sigma_x, max_partitions]
-      -> reproject [splat, guard]
-      -> filter_sheared (x, y) | filter_rotated (u, v) [filter]
+      -> partition_setup [merge_threshold, sigma_x, max_partitions, guard, reach]
+      -> reproject [splat, subsample]
+      -> filter_sheared (x, y) [recursions] | filter_mip (build, sample) | filter_rotated (u, v)
       -> composite
 
 Modes: ``practical`` (default: sparse statistics, every ``3 * spp``-th sample; layer
-merging at 10%; sheared filter) and ``lrdm`` (full statistics, no merging, the rotated
-separable Gaussian with bilinear taps). Without motion in the frame (``info.has_motion``
-false) every kernel is built with ``-D HAS_MOTION=0`` (``defocus_only``, in ``describe()``).
+merging at 10%; ``filter="sheared"`` or ``"mip"``) and ``lrdm`` (full statistics, no
+merging, ``filter="rotated"``: the rotated separable Gaussian with bilinear taps).
+Specialisations chosen from ``info`` (reported by ``describe()``): without motion every
+kernel is built with ``-D HAS_MOTION=0`` (``defocus_only``); a static frame with
+``|coc| < 0.5`` px everywhere runs the box pass alone (``static_focus``; ``specialize=False``
+forces the full plan).
 
 Depth buckets (``kernels/layered.h``): a bucket spans at most ``bucket_coc`` (0.5 px) of CoC
 and at most 1/8 of the frame's depth range, so they are evenly spaced in CoC near the focus
@@ -34,25 +37,36 @@ the segment at the means::
 
 (a uniform disc of radius r has variance r^2 / 4 per axis, a segment of length L variance
 L^2 / 12 along it; ``sigma_x = 0.33`` px is the paper's spatial filter). Its principal axes
-give ``sigma_u >= sigma_v`` with ``theta`` along ``m``. The sheared form (eq. 9) follows from
-``B B^T = S`` directly: ``s_v^2 = S_yy``, ``beta = S_xy / S_yy``, ``s_u^2 = det S / S_yy``
-(equal to eq. 9's expressions). The recursive filter uses ``gamma = exp(-sqrt 2 / s_u)``
-(eq. 10), whose forward-backward pair has variance ``2 gamma / (1 - gamma)^2 ~ s_u^2``.
-Samples are weighted uniformly over lens and shutter (the uvt part of the 5D filter is
-constant over the aperture and the shutter).
+give ``sigma_u >= sigma_v`` with ``theta`` along ``m``. Samples are weighted uniformly over
+lens and shutter (the uvt part of the 5D filter is constant over aperture and shutter). The
+variance-matched Gaussian is also close to the L2-best Gaussian for a disc's edge profile
+(sigma/r = 0.5 vs an optimum a little above 0.55), so its remaining error is the shape.
 
-Large filters: a partition whose ``3 sigma_u`` exceeds the guard band ``G`` (16 grid px) is
-reprojected onto a coarser grid, spacing ``s`` the smallest power of two (<= tile) that fits,
-and filtered there; composite reads it bilinearly. Samples are gathered from at most 96 px
-outside a tile (``REACH_MAX``): blurs beyond that are truncated (then renormalised).
+Sheared filter (eq. 9). ``B B^T = S`` gives the sheared form directly: ``s_v^2 = S_yy``,
+``beta = S_xy / S_yy``, ``s_u^2 = det S / S_yy`` (equal to eq. 9). Deviations, each measured
+at 512x512, 8 spp: (1) the Gaussian runs along the axis of larger variance (the transposed
+form when ``S_xx > S_yy``): eq. 9's form puts one tap per row, and a thin ellipse a few
+degrees off the x axis has ``s_v << 1`` row, so it collapsed to a point (fast_motion 24.6 ->
+30.7 dB); (2) the recursive filter (eq. 10) runs 3 forward-backward pairs (``recursions``;
+the paper: 1) whose gamma is solved for the variance of the *sampled* Gaussian, not
+``exp(-sqrt 2 / s_u)`` (exact for large sigma only): fence 34.3 -> 35.4 dB.
 
 Merging (partition_setup): front to back over populated buckets, a bucket joins the running
-partition when the merged filter's ``sigma_u`` and ``sigma_v`` stay within ``merge_threshold``
-(10%) of the larger candidate's; at most ``max_partitions`` (4) partitions per tile remain,
-further pairs merged by least shrink. Partitions cover the bucket axis without gaps, so a
-sample that sparse statistics did not see still belongs to one. Empty tiles get one in-focus
-static partition. Compositing divides by the accumulated opacity where nothing covers the
-back (and falls back to the pixel's mean where nothing covers at all).
+partition when the merged filter's ``sigma_u``, ``sigma_v`` shrink by at most
+``merge_threshold`` (10%) below the largest constituent bucket's filter (the paper's test,
+against the constituents so chained merges cannot drift) and grow by at most that above the
+smallest (otherwise a few sharp samples are absorbed into a wide filter: spheres 41.6 ->
+44.6 dB). At most ``max_partitions`` (4) remain per tile, further pairs merged by least
+change. Partitions cover the bucket axis without gaps, so a sample that sparse statistics
+did not see still belongs to one. Empty tiles get one in-focus static partition.
+
+Large filters: a partition whose ``3 sigma_u`` exceeds the guard band (16 grid px) is
+reprojected onto a grid of spacing ``s`` (the smallest power of two <= tile that fits) and
+filtered there; composite reads it bilinearly. On such grids reproject gathers one hashed
+pixel per ``min(s, 4)^2`` block (``subsample``; <= 0.15 dB, 3-4x faster). Samples are
+gathered from at most ``reach`` (96) px outside a tile: wider blurs are truncated and
+renormalised. Compositing divides by the accumulated opacity where nothing covers the back
+and falls back to the pixel's mean where nothing covers at all.
 """
 from __future__ import annotations
 
