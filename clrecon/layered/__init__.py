@@ -143,6 +143,8 @@ class LayeredPipeline(Pipeline):
             raise ValueError(f"reach: must be >= 1, got {reach}")
         self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
                           spp=info.spp, has_motion=motion, reach_max=int(reach))
+        if not motion:  # defocus only: shutter time and motion are never read
+            self.fields = ("color", "position", "depth", "lens")
         self.tuning: dict[str, str] = {}
         # a static frame whose blur stays inside the pixel (|coc| < 0.5 px) has nothing to
         # reconstruct beyond the pixel filter: it costs, and is, a box filter

@@ -26,14 +26,19 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--device", default=None)
+    ap.add_argument("--variant", action="append", default=None, metavar="NAME=JSON",
+                    help='e.g. \'forced-5d={"has_motion": true}\' (default: the three modes)')
     args = ap.parse_args()
+    variants = VARIANTS
+    if args.variant:
+        variants = [(v.split("=", 1)[0], json.loads(v.split("=", 1)[1])) for v in args.variant]
     w, h = (int(v) for v in args.size.split("x"))
     dev = get_device(args.device)
     scene = get_scene(args.scene)
     buf = render_samples(scene, w, h, args.spp, seed=100 + args.spp, device=dev)
     info = buf.inspect()
     runs = []
-    for name, knobs in VARIANTS:
+    for name, knobs in variants:
         pipe = make_pipeline("layered", dev.context, info, **knobs)
         s = DeviceSamples.upload(dev.queue, buf, pipe.fields)
         out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * 12)
@@ -55,7 +60,7 @@ def main() -> None:
             "describe": {k: v for k, v in pipe.describe().items() if k != "tuning"}}))
     big = render_samples(scene, 1920, 1080, 2, seed=1, device=dev).inspect()
     mem = {}
-    for name, knobs in VARIANTS:
+    for name, knobs in variants:
         pipe = make_pipeline("layered", dev.context, big, **knobs)
         sizes = pipe.buffer_sizes(1920, 1080)
         mem[name] = {"total_MB": round(sum(sizes.values()) / 2 ** 20, 1),
