@@ -235,3 +235,14 @@ def test_buffers_reused_across_frames(device, rng):
     img2 = np.empty_like(img)
     cl.enqueue_copy(q, img2, out2)
     assert_close(img, img2, rtol=1e-6, what="reuse")
+
+
+def test_layered_header_leaves_other_kernels_hashes_alone():
+    """Tuning entries key on a kernel's source hash; ``layered.h`` is in the hash of the
+    kernels that include it only (it used to make every tuned entry stale)."""
+    from clrecon.device import _included_headers, kernel_source
+
+    assert {p.name for p in _included_headers(kernel_source("box"))} == {"common.h"}
+    assert {p.name for p in _included_headers(kernel_source("reproject"))} == {"common.h",
+                                                                               "layered.h"}
+    assert {p.name for p in _included_headers(kernel_source("composite"))} == {"layered.h"}
