@@ -9,13 +9,16 @@
  * when the merged filter's sigma_u and sigma_v both stay >= (1 - threshold) times the
  * largest of the constituent buckets' own filters and <= 1 / (1 - threshold) times the
  * smallest (threshold < 0: never). If more than MAXP partitions remain, the
- * adjacent pair whose merge shrinks the filter least is merged until MAXP remain. Partition
+ * adjacent pair whose merge changes the filter least is merged until MAXP remain. Partition
  * k covers buckets (hi_{k-1}, hi_k]; the last one extends to NBUCKETS - 1, so every sample
  * has a partition. A tile without statistics gets one in-focus static partition.
  * Filter of a partition with mean CoC c and mean motion m: covariance
  *   S = (c^2 / 4 + sigma_x^2) I + m m^T / 12,
  * sigma_u >= sigma_v its principal standard deviations, theta along the major axis. The grid
  * spacing s is the smallest power of two (<= TILE) with ceil(3 sigma_u / s) + 1 <= GMAX.
+ * Sheared form (B B^T = S / s^2, eq. 9): the Gaussian axis is y (P_AXIS 0, beta = S_xy/S_yy)
+ * or, when S_xx > S_yy, x (P_AXIS 1, beta = S_xy/S_xx); the recursive std is
+ * sqrt(det S / S_axis) / s. Reach: min(G s + ceil(|A| + |b| / 2) + 1, REACH_MAX).
  * Compile-time: TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, REACH_MAX (gather reach cap, px).
  * Tunables: WG_X (local size).
  */
