@@ -160,7 +160,8 @@ def cmd_reconstruct(args) -> int:
 
 
 #: argparse destinations of ``reconstruct`` that are method knobs of the same name
-METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile", "group")
+METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile", "group",
+                "mode", "filter", "stats_stride", "merge_threshold")
 
 
 def cmd_compare(args) -> int:
@@ -398,8 +399,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--exponent", type=float, help="sweep: weight exponent (paper: 1.3)")
     sp.add_argument("--sort", choices=("block", "tile", "pixel"),
                     help="sweep: how the window is ordered (default: block on CPUs, else tile)")
-    sp.add_argument("--tile", type=int, help="sweep: tile size of sort=tile")
+    sp.add_argument("--tile", type=int,
+                    help="sweep: tile size of sort=tile; layered: screen tile (power of two)")
     sp.add_argument("--group", type=int, help="sweep: 4x4 blocks per work-group of sort=block")
+    sp.add_argument("--mode", choices=("practical", "lrdm"),
+                    help="layered: the 2015 method or its LRDM (2014) baseline")
+    sp.add_argument("--filter", choices=("sheared", "mip", "rotated"),
+                    help="layered: screen-space filter (default: sheared; lrdm: rotated)")
+    sp.add_argument("--stats-stride", type=int,
+                    help="layered: every n-th sample in the statistics (1: all; 3*spp)")
+    sp.add_argument("--merge-threshold", type=float,
+                    help="layered: merge layers while the filter changes < this (0.1; <0: off)")
     sp.add_argument("--json", action="store_true", help="print one JSON object")
     dev(sp)
     sp.set_defaults(fn=cmd_reconstruct)

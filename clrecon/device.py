@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -231,17 +232,37 @@ def kernel_source(name: str) -> str:
     return _read(path).decode()
 
 
-def _headers_digest() -> str:
+_INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.M)
+
+
+def _included_headers(source: str) -> set[Path]:
+    """Headers of ``kernels/`` that ``source`` includes, transitively."""
+    found: set[Path] = set()
+    todo = [source]
+    while todo:
+        for name in _INCLUDE.findall(todo.pop()):
+            p = kernels_dir() / name
+            if p.is_file() and p not in found:
+                found.add(p)
+                todo.append(_read(p).decode())
+    return found
+
+
+def _headers_digest(source: str | None = None) -> str:
+    """Digest of every header in ``kernels/`` or, given a source, of those it includes."""
     h = hashlib.sha256()
-    for p in sorted(kernels_dir().glob("*.h")):
+    paths = kernels_dir().glob("*.h") if source is None else _included_headers(source)
+    for p in sorted(paths):
         h.update(p.name.encode())
         h.update(_read(p))
     return h.hexdigest()
 
 
 def source_hash(name: str) -> str:
-    """Hash of a kernel file together with every shared header (tuning entries key on it)."""
-    return hashlib.sha256((kernel_source(name) + _headers_digest()).encode()).hexdigest()[:16]
+    """Hash of a kernel file together with the headers it includes (tuning entries key on
+    it; a method's own header does not make other methods' entries stale)."""
+    src = kernel_source(name)
+    return hashlib.sha256((src + _headers_digest(src)).encode()).hexdigest()[:16]
 
 
 _programs: dict[tuple, tuple[cl.Context, cl.Program]] = {}

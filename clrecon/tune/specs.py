@@ -212,6 +212,116 @@ def _raytrace_runner(dev, w, h, spp):
     return PassRunner(dev, Launch, launch, (h, w, spp, 3), _wg)
 
 
+# -- method layered -----------------------------------------------------------------------
+
+def layered_1d_candidates() -> list[dict | None]:
+    """Work-group sizes of the layered passes that run one work-item (or group) per tile."""
+    return [{"wg_x": x, "wg_y": 1} for x in (1, 2, 4, 8, 16, 32, 64)] + [None]
+
+
+def _layered_inputs(dev, w, h, spp, **knobs):
+    """A layered pipeline run once on a synthetic frame: every intermediate buffer filled."""
+    from ..pipeline import make_pipeline
+
+    buf = synthetic_frame(w, h, spp)
+    pipe = make_pipeline("layered", dev.context, buf.inspect(), **knobs)
+    s = DeviceSamples.upload(dev.queue, buf, pipe.fields)
+    out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * 12)
+    pipe(dev.queue, s, out).wait()
+    ntx, nty = pipe.lay.tiles(w, h)
+    return pipe, s, ntx * nty
+
+
+def _zero(queue, buf):
+    """Clear an output the pass writes only in part (unwritten garbage may hold NaNs, which
+    would fail verification); untimed: the runner times the pass's own event."""
+    return cl.enqueue_fill_buffer(queue, buf, np.float32(0), 0, buf.size)
+
+
+def _tile_stats_runner(dev, w, h, spp):
+    from ..layered.tile_stats import TileStats
+
+    pipe, s, nt = _layered_inputs(dev, w, h, spp)
+    lay, kabc = pipe.lay, pipe.bucket_params(s)
+    return PassRunner(dev, lambda c: TileStats(dev.context, lay, local_size_of(c)),
+                      lambda p, q, out: p(q, s, kabc, pipe.stats_stride, 0, out),
+                      (nt, lay.nbuckets, 8), _wg)
+
+
+def _partition_setup_runner(dev, w, h, spp):
+    from ..layered.partition_setup import PartitionSetup
+
+    pipe, s, nt = _layered_inputs(dev, w, h, spp)
+    lay, st = pipe.lay, pipe.buffers["stats"]
+    return PassRunner(dev, lambda c: PartitionSetup(dev.context, lay, local_size_of(c)),
+                      lambda p, q, out: p(q, st, nt, pipe.sigma_x, pipe.merge_threshold, out),
+                      (nt, lay.maxp, 20), _wg)
+
+
+def _reproject_runner(dev, w, h, spp):
+    from ..layered.reproject import Reproject
+
+    pipe, s, nt = _layered_inputs(dev, w, h, spp)
+    lay, kabc, par = pipe.lay, pipe.bucket_params(s), pipe.buffers["params"]
+    return PassRunner(dev, lambda c: Reproject(dev.context, lay, False, local_size_of(c)),
+                      lambda p, q, out: p(q, s, kabc, par, out, [_zero(q, out)]),
+                      (nt, lay.maxp, 5, lay.dmax ** 2), _wg)
+
+
+def _filter_sheared_runner(dev, w, h, spp):
+    """Times filter_sheared_y (the kernel the local size applies to); each launch first
+    restores the reprojected grids, which filter_sheared_x filters in place."""
+    from ..layered.filter_sheared import FilterSheared
+
+    pipe, s, nt = _layered_inputs(dev, w, h, spp)
+    lay, par = pipe.lay, pipe.buffers["params"]
+    src = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, pipe.buffers["grids"].size)
+    pipe.reproject(dev.queue, s, pipe.bucket_params(s), par, src).wait()
+    work = pipe.buffers["grids"]
+
+    def launch(p, q, out):
+        ev = cl.enqueue_copy(q, work, src)
+        return p(q, par, work, out, nt * lay.maxp, [ev, _zero(q, out)])
+
+    return PassRunner(dev, lambda c: FilterSheared(dev.context, lay, pipe.recursions,
+                                                   local_size_of(c)),
+                      launch, (nt, lay.maxp, 5, lay.ft ** 2), _wg)
+
+
+def _filter_rotated_runner(dev, w, h, spp):
+    from ..layered.filter_rotated import FilterRotated
+
+    pipe, s, nt = _layered_inputs(dev, w, h, spp, mode="lrdm")
+    lay, b = pipe.lay, pipe.buffers
+    return PassRunner(dev, lambda c: FilterRotated(dev.context, lay, local_size_of(c)),
+                      lambda p, q, out: p(q, b["params"], b["grids"], b["tmp"], out,
+                                          nt * lay.maxp, [_zero(q, out)]),
+                      (nt, lay.maxp, 5, lay.ft ** 2), _wg)
+
+
+def _filter_mip_runner(dev, w, h, spp):
+    from ..layered.filter_mip import FilterMip
+
+    pipe, s, nt = _layered_inputs(dev, w, h, spp, filter="mip")
+    lay, b = pipe.lay, pipe.buffers
+    return PassRunner(dev, lambda c: FilterMip(dev.context, lay, local_size_of(c)),
+                      lambda p, q, out: p(q, b["params"], b["grids"], b["pyramid"], out,
+                                          nt * lay.maxp, [_zero(q, out)]),
+                      (nt, lay.maxp, 5, lay.ft ** 2), _wg)
+
+
+def _composite_runner(dev, w, h, spp):
+    from ..layered.composite import Composite
+
+    pipe, s, nt = _layered_inputs(dev, w, h, spp)
+    lay, b = pipe.lay, pipe.buffers
+    return PassRunner(dev, lambda c: Composite(dev.context, lay, local_size_of(c)),
+                      lambda p, q, out: p(q, s["color"], b["params"], b["filtered"], w, h, out),
+                      (h, w, 3), _wg)
+
+
+LAYERED_1D = {"wg_x": 8, "wg_y": 1}
+
 DEFAULT_LOCAL = {"wg_x": 16, "wg_y": 4}
 
 SPECS: dict[str, PassSpec] = {s.name: s for s in (
@@ -232,6 +342,21 @@ SPECS: dict[str, PassSpec] = {s.name: s for s in (
              _layer_sums_runner),
     PassSpec("sweep_layer_resolve", "sweep_layer_resolve", DEFAULT_LOCAL, local_candidates,
              _layer_resolve_runner),
+    # method layered; float sums in a different order (atomics): relative tolerance
+    PassSpec("tile_stats", "tile_stats", LAYERED_1D, layered_1d_candidates, _tile_stats_runner,
+             rtol=1e-4, atol=1e-4),
+    PassSpec("partition_setup", "partition_setup", LAYERED_1D, layered_1d_candidates,
+             _partition_setup_runner),
+    PassSpec("reproject", "reproject", {"wg_x": 1, "wg_y": 1}, layered_1d_candidates,
+             _reproject_runner, rtol=1e-4, atol=1e-4),
+    PassSpec("filter_sheared", "filter_sheared", {"wg_x": 8, "wg_y": 8}, local_candidates,
+             _filter_sheared_runner, rtol=1e-4, atol=1e-5),
+    PassSpec("filter_rotated", "filter_rotated", {"wg_x": 8, "wg_y": 8}, local_candidates,
+             _filter_rotated_runner, rtol=1e-4, atol=1e-5),
+    PassSpec("filter_mip", "filter_mip", {"wg_x": 8, "wg_y": 8}, local_candidates,
+             _filter_mip_runner, rtol=1e-4, atol=1e-5),
+    PassSpec("composite", "composite", DEFAULT_LOCAL, local_candidates, _composite_runner,
+             rtol=1e-5, atol=1e-6),
 )}
 
 #: the configuration every pass uses when no tuning entry applies (lookup level "default")

@@ -1,0 +1,256 @@
+"""Method ``layered``: Practical Layered Reconstruction (Hasselgren, Munkberg, Vaidyanathan
+2015) and its baseline LRDM (Munkberg et al. 2014).
+
+Plan (passes; knobs in brackets)::
+
+    tile_stats [tile, stats_stride, seed, bucket_coc]
+      -> partition_setup [merge_threshold, sigma_x, max_partitions, guard, reach]
+      -> reproject [splat, subsample]
+      -> filter_sheared (x, y) [recursions] | filter_mip (build, sample) | filter_rotated (u, v)
+      -> composite
+
+Modes: ``practical`` (default: sparse statistics, every ``3 * spp``-th sample; layer
+merging at 10%; ``filter="sheared"`` or ``"mip"``) and ``lrdm`` (full statistics, no
+merging, ``filter="rotated"``: the rotated separable Gaussian with bilinear taps).
+Specialisations chosen from ``info`` (reported by ``describe()``): without motion every
+kernel is built with ``-D HAS_MOTION=0`` (``defocus_only``); a static frame with
+``|coc| < 0.5`` px everywhere runs the box pass alone (``static_focus``; ``specialize=False``
+forces the full plan).
+
+Depth buckets (``kernels/layered.h``): a bucket spans at most ``bucket_coc`` (0.5 px) of CoC
+and at most 1/8 of the frame's depth range, so they are evenly spaced in CoC near the focus
+plane and uniform in depth beyond; the steps are stretched when the frame needs more than
+``NBUCKETS - 1 = 31`` of them; misses have a bucket of their own, the last.
+
+Filter derivation (per partition; mean CoC ``c``, mean motion ``m`` from the statistics).
+A sample with CoC ``c_i`` and motion ``m_i`` is seen at ``p_i + c_i l + (t - 1/2) m_i`` (``p_i``
+its pinhole position at mid-shutter, ``l`` in the unit disc, ``t`` in [0, 1]); the frame to
+reconstruct is the pinhole image convolved per surface with its disc of radius ``|c_i|`` and
+its motion segment ``m_i``. Reprojection with the partition's ``A = c`` and ``b = m`` (eq. 1)
+puts the sample at ``p_i + (c_i - c) l + (t - 1/2)(m_i - m)``: the residual spreads it with
+variance ``(c_i - c)^2 / 4`` per axis and ``(m_i - m)(m_i - m)^T / 12``. What remains to apply
+is the mean physical blur less that residual; in expectation over the partition (the cross
+terms vanish because the residuals have mean zero) that is the covariance of the disc and
+the segment at the means::
+
+    S = (c^2 / 4 + sigma_x^2) I + m m^T / 12
+
+(a uniform disc of radius r has variance r^2 / 4 per axis, a segment of length L variance
+L^2 / 12 along it; ``sigma_x = 0.33`` px is the paper's spatial filter). Its principal axes
+give ``sigma_u >= sigma_v`` with ``theta`` along ``m``. Samples are weighted uniformly over
+lens and shutter (the uvt part of the 5D filter is constant over aperture and shutter). The
+variance-matched Gaussian is also close to the L2-best Gaussian for a disc's edge profile
+(sigma/r = 0.5 vs an optimum a little above 0.55), so its remaining error is the shape.
+
+Sheared filter (eq. 9). ``B B^T = S`` gives the sheared form directly: ``s_v^2 = S_yy``,
+``beta = S_xy / S_yy``, ``s_u^2 = det S / S_yy`` (equal to eq. 9). Deviations, each measured
+at 512x512, 8 spp: (1) the Gaussian runs along the axis of larger variance (the transposed
+form when ``S_xx > S_yy``): eq. 9's form puts one tap per row, and a thin ellipse a few
+degrees off the x axis has ``s_v << 1`` row, so it collapsed to a point (fast_motion 24.6 ->
+30.7 dB); (2) the recursive filter (eq. 10) runs 3 forward-backward pairs (``recursions``;
+the paper: 1) whose gamma is solved for the variance of the *sampled* Gaussian, not
+``exp(-sqrt 2 / s_u)`` (exact for large sigma only): fence 34.3 -> 35.4 dB.
+
+Merging (partition_setup): front to back over populated buckets, a bucket joins the running
+partition when the merged filter's ``sigma_u``, ``sigma_v`` shrink by at most
+``merge_threshold`` (10%) below the largest constituent bucket's filter (the paper's test,
+against the constituents so chained merges cannot drift) and grow by at most that above the
+smallest (otherwise a few sharp samples are absorbed into a wide filter: spheres 41.6 ->
+44.6 dB). At most ``max_partitions`` (4) remain per tile, further pairs merged by least
+change. Partitions cover the bucket axis without gaps, so a sample that sparse statistics
+did not see still belongs to one. Empty tiles get one in-focus static partition.
+
+Large filters: a partition whose ``3 sigma_u`` exceeds the guard band (16 grid px) is
+reprojected onto a grid of spacing ``s`` (the smallest power of two <= tile that fits) and
+filtered there; composite reads it bilinearly. On such grids reproject gathers one hashed
+pixel per ``min(s, 4)^2`` block (``subsample``; <= 0.15 dB, 3-4x faster). Samples are
+gathered from at most ``reach`` (96) px outside a tile: wider blurs are truncated and
+renormalised. Compositing divides by the accumulated opacity where nothing covers the back
+and falls back to the pixel's mean where nothing covers at all.
+"""
+from __future__ import annotations
+
+import math
+
+import pyopencl as cl
+
+from ..pipeline import DeviceSamples, LocalSize, Pipeline, register
+from .composite import Composite
+from .filter_mip import FilterMip
+from .filter_rotated import FilterRotated
+from .filter_sheared import FilterSheared
+from .partition_setup import PartitionSetup
+from .reference import NCH, NPAR, NSTAT, Layout, bucket_params, mip_levels
+from .reproject import Reproject
+from .tile_stats import TileStats
+
+MODES = ("practical", "lrdm")
+FILTERS = ("sheared", "mip", "rotated")
+SPLATS = ("nearest", "bilinear")
+NBUCKETS = 32
+STATIC_COC = 0.5  # px: below this everywhere (and no motion) the frame is reconstructed by box
+
+
+@register
+class LayeredPipeline(Pipeline):
+    name = "layered"
+    fields = ("color", "position", "depth", "lens", "time", "motion")
+
+    def __init__(self, context, info, mode: str = "practical", filter: str | None = None,
+                 tile: int = 32, stats_stride: int | None = None,
+                 merge_threshold: float | None = None, sigma_x: float = 0.33,
+                 max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
+                 splat: str = "nearest", seed: int = 0, has_motion: bool | None = None,
+                 recursions: int = 3, specialize: bool = True, reach: int = 96,
+                 subsample: bool = True):
+        super().__init__(context, info)
+        if mode not in MODES:
+            raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
+        filter = filter or ("rotated" if mode == "lrdm" else "sheared")
+        if filter not in FILTERS:
+            raise ValueError(f"filter: must be one of {FILTERS}, got {filter!r}")
+        if splat not in SPLATS:
+            raise ValueError(f"splat: must be one of {SPLATS}, got {splat!r}")
+        tile = int(tile)
+        if tile < 2 or tile > 128 or tile & (tile - 1):
+            raise ValueError(f"tile: must be a power of two in [2, 128], got {tile}")
+        if stats_stride is None:
+            stats_stride = 1 if mode == "lrdm" else 3 * info.spp
+        if int(stats_stride) < 1:
+            raise ValueError(f"stats_stride: must be >= 1, got {stats_stride}")
+        if merge_threshold is None:
+            merge_threshold = -1.0 if mode == "lrdm" else 0.1
+        if not sigma_x > 0:
+            raise ValueError(f"sigma_x: must be > 0, got {sigma_x}")
+        if not 1 <= int(max_partitions) <= 16:
+            raise ValueError(f"max_partitions: must be in [1, 16], got {max_partitions}")
+        if int(guard) < 2:
+            raise ValueError(f"guard: must be >= 2, got {guard}")
+        if not 1 <= int(recursions) <= 4:
+            raise ValueError(f"recursions: must be in [1, 4], got {recursions}")
+        self.recursions = int(recursions)
+        if not bucket_coc > 0:
+            raise ValueError(f"bucket_coc: must be > 0, got {bucket_coc}")
+        self.mode, self.filter, self.splat = mode, filter, splat
+        self.stats_stride, self.merge_threshold = int(stats_stride), float(merge_threshold)
+        self.sigma_x, self.bucket_coc, self.seed = float(sigma_x), float(bucket_coc), int(seed)
+        motion = info.has_motion if has_motion is None else bool(has_motion)
+        # the guard band need not exceed the largest blur the frame can have
+        sig = math.sqrt(info.max_abs_coc ** 2 / 4 + info.max_abs_motion ** 2 / 12
+                        + sigma_x ** 2)
+        gmax = max(2, min(int(guard), math.ceil(3 * sig) + 1))
+        if int(reach) < 1:
+            raise ValueError(f"reach: must be >= 1, got {reach}")
+        self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
+                          spp=info.spp, has_motion=motion, reach_max=int(reach))
+        if not motion:  # defocus only: shutter time and motion are never read
+            self.fields = ("color", "position", "depth", "lens")
+        self.tuning: dict[str, str] = {}
+        # a static frame whose blur stays inside the pixel (|coc| < 0.5 px) has nothing to
+        # reconstruct beyond the pixel filter: it costs, and is, a box filter
+        self.box = None
+        if specialize and not info.has_motion and info.max_abs_coc < STATIC_COC:
+            from ..box import Box
+
+            self.fields = ("color",)
+            self.box = Box(context, self._local("box"))
+        if self.box is not None:
+            self.buffers = {}
+            return
+        self.stats_pass = TileStats(context, self.lay, self._local("tile_stats"))
+        self.setup = PartitionSetup(context, self.lay, self._local("partition_setup"))
+        self.subsample = bool(subsample)
+        self.reproject = Reproject(context, self.lay, splat == "bilinear",
+                                   self._local("reproject"), self.subsample)
+        if filter == "sheared":
+            self.filt = FilterSheared(context, self.lay, self.recursions,
+                                      self._local("filter_sheared"))
+        elif filter == "mip":
+            self.filt = FilterMip(context, self.lay, self._local("filter_mip"))
+        else:
+            self.filt = FilterRotated(context, self.lay, self._local("filter_rotated"))
+        self.comp = Composite(context, self.lay, self._local("composite"))
+        self._alloc(info.width, info.height)
+
+    def _local(self, pass_name: str) -> LocalSize | None:
+        from ..tune.runtime import tuned
+        from ..tune.specs import SPECS, local_size_of
+
+        if pass_name not in SPECS:
+            self.tuning[pass_name] = "builtin"
+            return None
+        found = tuned(self.context, pass_name, self.info)
+        self.tuning[pass_name] = found.source
+        return local_size_of(found.config)
+
+    def buffer_sizes(self, width: int, height: int) -> dict[str, int]:
+        """Bytes of each temporary this plan allocates for a ``width x height`` frame."""
+        if self.box is not None:
+            return {}
+        lay = self.lay
+        ntx, nty = lay.tiles(width, height)
+        slots = ntx * nty * lay.maxp
+        sizes = {"stats": ntx * nty * lay.nbuckets * NSTAT * 4,
+                 "params": slots * NPAR * 4,
+                 "grids": slots * NCH * lay.dmax ** 2 * 4,
+                 "filtered": slots * NCH * lay.ft ** 2 * 4}
+        if self.filter == "rotated":
+            sizes["tmp"] = sizes["grids"]
+        if self.filter == "mip":
+            sizes["pyramid"] = slots * NCH * mip_levels(lay.dmax)[1] * 4
+        return sizes
+
+    def _alloc(self, width: int, height: int) -> None:
+        rw = cl.mem_flags.READ_WRITE
+        self.buffers = {k: cl.Buffer(self.context, rw, v)
+                        for k, v in self.buffer_sizes(width, height).items()}
+
+    def describe(self) -> dict:
+        return {"method": "layered", "mode": self.mode, "filter": self.filter,
+                "defocus_only": not self.lay.has_motion,
+                "static_focus": self.box is not None, "tile": self.lay.tile,
+                "stats_stride": self.stats_stride, "merge_threshold": self.merge_threshold,
+                "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
+                "guard": self.lay.gmax, "reach": self.lay.reach_max,
+                "bucket_coc": self.bucket_coc, "splat": self.splat,
+                "subsample": getattr(self, "subsample", None),
+                "recursions": self.recursions if self.filter == "sheared" else None,
+                "device_bytes": sum(self.buffer_sizes(self.info.width,
+                                                      self.info.height).values()),
+                "tuning": self.tuning}
+
+    def bucket_params(self, samples: DeviceSamples) -> tuple:
+        c0, c1 = samples.coc
+        return bucket_params(c0, c1, self.info.min_depth, self.info.max_depth,
+                             self.lay.nbuckets, self.bucket_coc)
+
+    def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
+        w, h = samples.width, samples.height
+        if self.box is not None:
+            ev = self.box(queue, samples["color"], out, w, h, samples.spp, wait_for)
+            self.events.append(("box", ev))
+            return ev
+        ntx, nty = self.lay.tiles(w, h)
+        b = self.buffers
+        kabc = self.bucket_params(samples)
+        ev = self.stats_pass(queue, samples, kabc, self.stats_stride, self.seed, b["stats"],
+                             wait_for)
+        self.events.append(("tile_stats", ev))
+        ev = self.setup(queue, b["stats"], ntx * nty, self.sigma_x, self.merge_threshold,
+                        b["params"], [ev])
+        self.events.append(("partition_setup", ev))
+        ev = self.reproject(queue, samples, kabc, b["params"], b["grids"], [ev])
+        self.events.append(("reproject", ev))
+        nslots = ntx * nty * self.lay.maxp
+        if self.filter == "sheared":
+            ev = self.filt(queue, b["params"], b["grids"], b["filtered"], nslots, [ev])
+        elif self.filter == "mip":
+            ev = self.filt(queue, b["params"], b["grids"], b["pyramid"], b["filtered"], nslots,
+                           [ev])
+        else:
+            ev = self.filt(queue, b["params"], b["grids"], b["tmp"], b["filtered"], nslots,
+                           [ev])
+        self.events.extend(self.filt.events)
+        ev = self.comp(queue, samples["color"], b["params"], b["filtered"], w, h, out, [ev])
+        self.events.append(("composite", ev))
+        return ev

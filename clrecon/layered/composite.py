@@ -1,0 +1,28 @@
+"""Pass ``composite``: front-to-back blend of a pixel's filtered partitions."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ..pipeline import LocalSize
+from .passes import layered_kernel, local_for
+from .reference import Layout
+
+
+class Composite:
+    """``kernels/composite.cl``: one work-item per pixel."""
+
+    name = "composite"
+
+    def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None):
+        self.lay = lay
+        self.local = local or LocalSize(16, 4)
+        self.kernel = layered_kernel(context, "composite", "composite", lay, self.local)
+
+    def __call__(self, queue, color: cl.Buffer, params: cl.Buffer, filtered: cl.Buffer,
+                 width: int, height: int, out: cl.Buffer, wait_for=None) -> cl.Event:
+        ntx, _ = self.lay.tiles(width, height)
+        self.kernel.set_args(color, params, filtered, np.int32(width), np.int32(height),
+                             np.int32(ntx), out)
+        g, loc = local_for(self.local, (width, height))
+        return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)

@@ -1,0 +1,155 @@
+/* filter_mip.cl: the screen-space filter from a MIP pyramid per partition grid and four
+ * anisotropic lookups (Hasselgren et al. 2015, section 6.1). OpenCL has no anisotropic
+ * sampler, so each lookup is emulated as hardware does it: trilinear probes along the major
+ * axis of its footprint. Buffers throughout (no image objects).
+ *
+ * filter_mip_build: one work-group of WG_X items per slot (1D range tiles * MAXP * WG_X);
+ *   level l >= 1 of the pyramid (side D_l = ceil(D_{l-1} / 2)) is the mean of 2x2 texels of
+ *   level l - 1 (missing texels count as 0); level 0 is the grid itself. Barriers between
+ *   levels (the group owns its slot).
+ *   pyr  float (tiles, MAXP, NCH, PYR_PLANE): levels 1.. packed, row stride D_l
+ * filter_mip_sample: one work-item per filtered pixel (i, j) in [-1, T/s]^2, range (FT, FT,
+ *   tiles * MAXP). Four taps at +-MIP_D sigma along u and along v of the partition's
+ *   Gaussian (sigma_u, sigma_v, theta in grid pixels); each tap's footprint is the ellipse
+ *   (MIP_ALPHA - MIP_D) sigma that touches the MIP_ALPHA sigma edge (MIP_ALPHA = 2.24: 95% of
+ *   the energy, eq. 3). A tap is n = ceil(major / minor) (<= MAX_ANISO) trilinear probes at
+ *   LOD log2(minor footprint), spread over +-sqrt(3 (tsu^2 - tsv^2)) along the major axis so
+ *   that the probes' spread adds the missing variance. Level-l texel k is centred at
+ *   k 2^l + (2^l - 1) / 2 in grid coordinates. Unnormalised sums (composite divides).
+ * Compile-time: TILE, MAXP, GMAX, NLEV (levels incl. 0), PYR_PLANE. Tunables: WG_X, WG_Y.
+ */
+#include "layered.h"
+
+#ifndef WG_X
+#define WG_X 8
+#endif
+#ifndef WG_Y
+#define WG_Y 8
+#endif
+#ifndef NLEV
+#define NLEV 7
+#endif
+#ifndef PYR_PLANE
+#define PYR_PLANE 1
+#endif
+#define MIP_ALPHA 2.24f
+#define MIP_D 0.33f
+#define MAX_ANISO 16
+
+inline int level_side(int dim, int l) { return (dim + (1 << l) - 1) >> l; }
+
+inline int level_offset(int dim, int l)  /* offset of level l >= 1 within a channel plane */
+{
+    int off = 0;
+    for (int m = 1; m < l; ++m) {
+        const int d = level_side(dim, m);
+        off += d * d;
+    }
+    return off;
+}
+
+__kernel void filter_mip_build(__global const float *params, __global const float *grids,
+                               __global float *pyr)
+{
+    const int slot = get_group_id(0), lid = get_local_id(0), n = get_local_size(0);
+    __global const float *p = params + (size_t)slot * NPAR;
+    const int dim = (int)p[P_DIM];
+    if (dim == 0)
+        return;
+    __global const float *g0 = grids + (size_t)slot * NCH * DMAX * DMAX;
+    __global float *py = pyr + (size_t)slot * NCH * PYR_PLANE;
+    for (int l = 1; l < NLEV; ++l) {
+        const int ds = level_side(dim, l - 1), dd = level_side(dim, l);
+        __global const float *src = l == 1 ? g0 : py + level_offset(dim, l - 1);
+        const int sp = l == 1 ? DMAX * DMAX : PYR_PLANE;
+        __global float *dst = py + level_offset(dim, l);
+        for (int k = lid; k < dd * dd; k += n) {
+            const int x = 2 * (k % dd), y = 2 * (k / dd);
+            for (int c = 0; c < NCH; ++c) {
+                __global const float *s = src + c * sp;
+                float v = s[y * ds + x];
+                if (x + 1 < ds)
+                    v += s[y * ds + x + 1];
+                if (y + 1 < ds) {
+                    v += s[(y + 1) * ds + x];
+                    if (x + 1 < ds)
+                        v += s[(y + 1) * ds + x + 1];
+                }
+                dst[c * PYR_PLANE + k] = 0.25f * v;
+            }
+        }
+        barrier(CLK_GLOBAL_MEM_FENCE);
+    }
+}
+
+/* Bilinear lookup of level l at grid coordinate (x, y); texels outside read 0. */
+inline void mip_bilinear(__global const float *g0, __global const float *py, int dim, int l,
+                         float x, float y, float wt, float *acc)
+{
+    const float sc = (float)(1 << l);
+    const float lx = (x - 0.5f * (sc - 1.0f)) / sc, ly = (y - 0.5f * (sc - 1.0f)) / sc;
+    const int side = level_side(dim, l);
+    const float fx = floor(lx), fy = floor(ly);
+    const int ix = (int)fx, iy = (int)fy;
+    if (ix < -1 || iy < -1 || ix >= side || iy >= side)
+        return;
+    __global const float *b = l == 0 ? g0 : py + level_offset(dim, l);
+    const int plane = l == 0 ? DMAX * DMAX : PYR_PLANE;
+    const float ax = lx - fx, ay = ly - fy;
+    const float w[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay, ax * ay};
+    for (int q = 0; q < 4; ++q) {
+        const int tx = ix + (q & 1), ty = iy + (q >> 1);
+        if (tx < 0 || ty < 0 || tx >= side || ty >= side || w[q] == 0.0f)
+            continue;
+        for (int c = 0; c < NCH; ++c)
+            acc[c] += wt * w[q] * b[c * plane + ty * side + tx];
+    }
+}
+
+inline void mip_trilinear(__global const float *g0, __global const float *py, int dim,
+                          float lod, float x, float y, float *acc)
+{
+    lod = clamp(lod, 0.0f, (float)(NLEV - 1));
+    const int l = min((int)lod, NLEV - 2 < 0 ? 0 : NLEV - 2);
+    const float f = NLEV > 1 ? lod - (float)l : 0.0f;
+    mip_bilinear(g0, py, dim, l, x, y, 1.0f - f, acc);
+    if (f > 0.0f)
+        mip_bilinear(g0, py, dim, l + 1, x, y, f, acc);
+}
+
+__kernel void filter_mip_sample(__global const float *params, __global const float *grids,
+                                __global const float *pyr, __global float *filtered)
+{
+    const int i = get_global_id(0) - 1, j = get_global_id(1) - 1, slot = get_global_id(2);
+    __global const float *p = params + (size_t)slot * NPAR;
+    const int dim = (int)p[P_DIM];
+    if (dim == 0)
+        return;
+    const int side = TILE / (int)p[P_SCALE];
+    if (i > side || j > side)
+        return;
+    const float g = p[P_GUARD], inv_s = 1.0f / p[P_SCALE];
+    const float su = p[P_SU] * inv_s, sv = p[P_SV] * inv_s;
+    const float2 eu = (float2)(p[P_COS], p[P_SIN]), ev = (float2)(-p[P_SIN], p[P_COS]);
+    const float tsu = (MIP_ALPHA - MIP_D) / MIP_ALPHA * su;  /* tap's own sigma */
+    const float tsv = (MIP_ALPHA - MIP_D) / MIP_ALPHA * sv;
+    const int n = clamp((int)ceil(tsu / fmax(tsv, 1e-3f)), 1, MAX_ANISO);
+    const float minor = fmax(tsv, tsu / MAX_ANISO);
+    const float lod = log2(fmax(MIP_ALPHA * minor, 1.0f));
+    const float spread = sqrt(fmax(3.0f * (tsu * tsu - minor * minor), 0.0f));
+    const float2 c0 = (float2)(i + g, j + g);
+    __global const float *g0 = grids + (size_t)slot * NCH * DMAX * DMAX;
+    __global const float *py = pyr + (size_t)slot * NCH * PYR_PLANE;
+    float acc[NCH] = {0.0f};
+    const float2 offs[4] = {MIP_D * su * eu, -MIP_D * su * eu, MIP_D * sv * ev, -MIP_D * sv * ev};
+    for (int t = 0; t < 4; ++t) {
+        for (int m = 0; m < n; ++m) {
+            const float along = n > 1 ? spread * (2.0f * (m + 0.5f) / n - 1.0f) : 0.0f;
+            const float2 q = c0 + offs[t] + along * eu;
+            mip_trilinear(g0, py, dim, lod, q.x, q.y, acc);
+        }
+    }
+    __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);
+    for (int c = 0; c < NCH; ++c)
+        out[c * FT * FT] = acc[c] / n;
+}

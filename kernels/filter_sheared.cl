@@ -1,0 +1,137 @@
+/* filter_sheared.cl: the rotated Gaussian of each partition as a sheared one (eq. 9; Hasselgren
+ * et al. 2015, section 6.2): a recursive filter along one grid axis (eq. 10, forward then
+ * backward) and a Gaussian along the sheared axis, per tile with its guard band.
+ *
+ * Axis (P_AXIS, from partition_setup): 0 is the paper's decomposition, recursive along x and
+ * the Gaussian along (beta, 1), sampled one tap per row; 1 is its transpose, recursive along
+ * y and the Gaussian along (1, beta), one tap per column. The Gaussian runs along the axis of
+ * larger variance, so its taps are at most about one grid pixel apart: a thin ellipse a few
+ * degrees off the x axis has s_v << 1 in the paper's form, and one tap per row would then
+ * collapse it to a point (measured: 140 px motion lost 6 dB).
+ *
+ * filter_sheared_x: one work-item per (grid line, slot), range (DMAX, tiles * MAXP); the line
+ *   is row (axis 0) or column (axis 1) `line`; lines of empty slots and lines >= D return.
+ *   In place on every channel: forward y[i] = (1 - gamma) x[i] + gamma y[i - 1] (y[-1] = 0),
+ *   then the same backward, RECURSIONS times. gamma gives each pair the variance
+ *   2 gamma / (1 - gamma)^2 = v / RECURSIONS, v the variance of the Gaussian of std s_u
+ *   sampled at integers (the same discrete filter the Gaussian taps apply; for s_u >= 2 it is
+ *   s_u^2, for the in-focus 0.33 px about 0.02). Eq. 10's gamma = exp(-sqrt2 / s_u) is the
+ *   large-s_u limit.
+ * filter_sheared_y: one work-item per filtered pixel (i, j) in [-1, T/s]^2 of a slot, range
+ *   (FT, FT, tiles * MAXP): out = sum_k exp(-k^2 / (2 s_v^2)) grid((i, j) + G + k e),
+ *   e = (beta, 1) or (1, beta), k = -ceil(3 s_v) .. ceil(3 s_v), linear interpolation along
+ *   the recursive axis, taps outside the grid dropped. Unnormalised: composite divides the
+ *   channels by each other.
+ *   grids     float (tiles, MAXP, NCH, DMAX, DMAX), row stride D (reproject's layout)
+ *   filtered  float (tiles, MAXP, NCH, FT, FT), index (j + 1) * FT + (i + 1)
+ * Compile-time: TILE, MAXP, GMAX, RECURSIONS. Tunables: WG_X, WG_Y (local size of
+ * filter_sheared_y).
+ */
+#include "layered.h"
+
+#ifndef WG_X
+#define WG_X 8
+#endif
+#ifndef WG_Y
+#define WG_Y 8
+#endif
+#ifndef RECURSIONS
+#define RECURSIONS 3  /* forward-backward passes (1: the paper's eq. 10) */
+#endif
+
+/* Variance of exp(-k^2 / (2 s^2)) sampled at the integers. */
+inline float sampled_gauss_var(float s)
+{
+    if (s >= 2.0f)
+        return s * s;
+    float num = 0.0f, den = 1.0f;
+    for (int k = 1; k <= 6; ++k) {
+        const float w = exp(-(float)(k * k) / (2.0f * s * s));
+        num += 2.0f * k * k * w;
+        den += 2.0f * w;
+    }
+    return num / den;
+}
+
+/* gamma whose forward-backward pair has variance v: 2 g / (1 - g)^2 = v. */
+inline float recursive_gamma(float v)
+{
+    return v > 1e-6f ? ((v + 1.0f) - sqrt(2.0f * v + 1.0f)) / v : 0.0f;
+}
+
+__kernel void filter_sheared_x(__global const float *params, __global float *grids)
+{
+    const int line = get_global_id(0), slot = get_global_id(1);
+    __global const float *p = params + (size_t)slot * NPAR;
+    const int dim = (int)p[P_DIM];
+    if (line >= dim)
+        return;
+    const int along = p[P_AXIS] == 0.0f ? 1 : dim;       /* element stride on the line */
+    const int start = p[P_AXIS] == 0.0f ? line * dim : line;
+    const float gm = recursive_gamma(sampled_gauss_var(p[P_SHU]) / RECURSIONS);
+    const float a = 1.0f - gm;
+    /* the NCH channels run side by side: independent recursions the CPU can overlap */
+    __global float *r = grids + (size_t)slot * NCH * DMAX * DMAX + start;
+    for (int n = 0; n < RECURSIONS; ++n) {
+        float y[NCH] = {0.0f};
+        for (int i = 0; i < dim; ++i) {
+            for (int c = 0; c < NCH; ++c) {
+                y[c] = a * r[c * DMAX * DMAX + i * along] + gm * y[c];
+                r[c * DMAX * DMAX + i * along] = y[c];
+            }
+        }
+        for (int c = 0; c < NCH; ++c)
+            y[c] = 0.0f;
+        for (int i = dim - 1; i >= 0; --i) {
+            for (int c = 0; c < NCH; ++c) {
+                y[c] = a * r[c * DMAX * DMAX + i * along] + gm * y[c];
+                r[c * DMAX * DMAX + i * along] = y[c];
+            }
+        }
+    }
+}
+
+__kernel void filter_sheared_y(__global const float *params, __global const float *grids,
+                               __global float *filtered)
+{
+    const int i = get_global_id(0) - 1, j = get_global_id(1) - 1, slot = get_global_id(2);
+    __global const float *p = params + (size_t)slot * NPAR;
+    const int dim = (int)p[P_DIM];
+    if (dim == 0)
+        return;
+    const int side = TILE / (int)p[P_SCALE];
+    if (i > side || j > side)
+        return;
+    const int g = (int)p[P_GUARD];
+    const float sv = p[P_SHV], beta = p[P_BETA];
+    /* (u, w): position along the recursive axis and the tap axis; axis 1 swaps x and y */
+    const int ax = p[P_AXIS] != 0.0f;
+    const int u0 = (ax ? j : i) + g, w0 = (ax ? i : j) + g;
+    const int su = ax ? dim : 1, sw = ax ? 1 : dim;   /* strides of u and w in the grid */
+    const int kmax = min((int)ceil(3.0f * sv), dim);
+    const float inv = -0.5f / (sv * sv);
+    float acc[NCH] = {0.0f};
+    __global const float *grid = grids + (size_t)slot * NCH * DMAX * DMAX;
+    for (int k = -kmax; k <= kmax; ++k) {
+        const int w = w0 + k;
+        if (w < 0 || w >= dim)
+            continue;
+        const float uf = (float)u0 + beta * (float)k;
+        const float fu = floor(uf);
+        const float f = uf - fu;
+        const int u = (int)fu;
+        if (u < -1 || u >= dim)
+            continue;
+        const float wk = exp(inv * (float)(k * k));
+        const float wa = u >= 0 ? wk * (1.0f - f) : 0.0f;
+        const float wb = u + 1 < dim ? wk * f : 0.0f;
+        for (int c = 0; c < NCH; ++c) {
+            __global const float *r = grid + c * DMAX * DMAX + w * sw;
+            acc[c] += (wa != 0.0f ? wa * r[u * su] : 0.0f)
+                      + (wb != 0.0f ? wb * r[(u + 1) * su] : 0.0f);
+        }
+    }
+    __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);
+    for (int c = 0; c < NCH; ++c)
+        out[c * FT * FT] = acc[c];
+}

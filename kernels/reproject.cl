@@ -1,0 +1,143 @@
+/* reproject.cl: every sample of a tile and its guard band, reprojected to (u, v, t) =
+ * (0, 0, 0.5) with the parameters of each partition of the tile (eq. 1) and splatted into
+ * that partition's grid (Hasselgren et al. 2015, section 5).
+ *
+ * reproject: one work-group per (tile, slot) (1D range ntiles * MAXP * WG_X); empty slots
+ * (P_DIM == 0) return. The group clears its D x D x NCH grid, then its work-items stride over
+ * the samples of the pixels within P_REACH of the tile (clipped to the image). A sample in
+ * bucket b of the slot's range [lo, hi] adds (r, g, b, 1) to channels 0-3 ("own"); a sample
+ * behind it (b > hi) adds 1 to channel 4 ("behind"); samples in front are skipped. The
+ * sample lands at x' = position - A * lens - (t - 0.5) * b, grid coordinate
+ * (x' - x0) / s + G - 0.5; nearest grid pixel, or bilinear weights with SPLAT_BILINEAR.
+ * Grid pixels outside [0, D) are dropped. With SUBSAMPLE (default), a slot on a grid of
+ * spacing s > 1 reads one hashed pixel per min(s, 4)^2 block (see below).
+ *   inputs  SoA sample fields (color, position, depth, lens, time); params from
+ *           partition_setup; grids float (tiles, MAXP, NCH, DMAX, DMAX), row stride D.
+ * With WG_X > 1 work-items scatter with atomic_add_f32 (common.h); with WG_X == 1 the one
+ * work-item owns the grid and adds plainly (no atomics, deterministic order).
+ * Compile-time: SPP, TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, SPLAT_BILINEAR, SUBSAMPLE.
+ * Tunables: WG_X (work-group size, the host launches with it).
+ */
+#include "common.h"
+#include "layered.h"
+
+#ifndef SPP
+#define SPP 8
+#endif
+#ifndef WG_X
+#define WG_X 1
+#endif
+#ifndef SPLAT_BILINEAR
+#define SPLAT_BILINEAR 0
+#endif
+#ifndef SUBSAMPLE
+#define SUBSAMPLE 1
+#endif
+#define SUBSAMPLE_MAX 4
+
+inline uint block_hash(int cx, int cy, int sub)
+{
+    uint h = ((uint)cx * 0x8da6b343u) ^ ((uint)cy * 0xd8163841u) ^ ((uint)sub * 0xcb1ab31fu);
+    h ^= h >> 13;
+    h *= 0x85ebca6bu;
+    h ^= h >> 16;
+    return h;
+}
+
+#if WG_X > 1
+#define GRID_ADD(p, v) atomic_add_f32((volatile __global float *)(p), (v))
+#else
+#define GRID_ADD(p, v) (*(p) += (v))
+#endif
+
+inline void splat(__global float *grid, int dim, int gx, int gy, float wt, float3 c, int own)
+{
+    if (gx < 0 || gy < 0 || gx >= dim || gy >= dim || wt == 0.0f)
+        return;
+    __global float *p = grid + gy * dim + gx;
+    const int plane = DMAX * DMAX;
+    if (own) {
+        GRID_ADD(p, wt * c.x);
+        GRID_ADD(p + plane, wt * c.y);
+        GRID_ADD(p + 2 * plane, wt * c.z);
+        GRID_ADD(p + 3 * plane, wt);
+    } else {
+        GRID_ADD(p + 4 * plane, wt);
+    }
+}
+
+__kernel __attribute__((reqd_work_group_size(WG_X, 1, 1)))
+void reproject(__global const float *color, __global const float *position,
+               __global const float *depth, __global const float *lens,
+               __global const float *time, const int width, const int height,
+               const int ntx, const float ka, const float kb, const float kc,
+               __global const float *params, __global float *grids)
+{
+    const int slot = get_group_id(0), lid = get_local_id(0);
+    const int t = slot / MAXP;
+    __global const float *p = params + (size_t)slot * NPAR;
+    const int dim = (int)p[P_DIM];
+    if (dim == 0)
+        return;
+    __global float *grid = grids + (size_t)slot * NCH * DMAX * DMAX;
+    for (int c = 0; c < NCH; ++c)
+        for (int k = lid; k < dim * dim; k += WG_X)
+            grid[c * DMAX * DMAX + k] = 0.0f;
+    barrier(CLK_GLOBAL_MEM_FENCE);
+    const int x0 = (t % ntx) * TILE, y0 = (t / ntx) * TILE;
+    const int lo = (int)p[P_LO], hi = (int)p[P_HI], reach = (int)p[P_REACH];
+    const float A = p[P_A], inv_s = 1.0f / p[P_SCALE], g = p[P_GUARD];
+    const float2 bm = (float2)(p[P_BX], p[P_BY]);
+    const int ax = max(0, x0 - reach), bx = min(width, x0 + TILE + reach);
+    const int ay = max(0, y0 - reach), by = min(height, y0 + TILE + reach);
+    /* SUBSAMPLE: a slot on a grid of spacing s > 1 gathers one pixel (all its samples) per
+     * b x b block of the image, b = min(s, SUBSAMPLE_MAX), the pixel picked by a hash of the
+     * block (the same in every tile); the slot's channels are divided by each other, so the
+     * common weight b^2 of the kept samples cancels. The cap keeps >= (s / 4)^2 pixels per
+     * grid pixel on very coarse grids (1 per grid pixel lost 0.6 dB on 280 px motion). */
+    const int sub = SUBSAMPLE ? min((int)p[P_SCALE], SUBSAMPLE_MAX) : 1;
+    const int cx0 = ax / sub, cy0 = ay / sub;
+    const int nbw = (bx + sub - 1) / sub - cx0, nbh = (by + sub - 1) / sub - cy0;
+    const int n = ax < bx && ay < by ? nbw * nbh : 0;
+    for (int k = lid; k < n; k += WG_X) {
+        const int cx = cx0 + k % nbw, cy = cy0 + k / nbw;
+        int px = cx * sub, py = cy * sub;
+        if (sub > 1) {
+            const uint h = block_hash(cx, cy, sub);
+            px += (int)(h % (uint)sub);
+            py += (int)((h >> 16) % (uint)sub);
+        }
+        if (px < ax || px >= bx || py < ay || py >= by)
+            continue;
+        const size_t base = ((size_t)py * width + px) * SPP;
+        for (int i = 0; i < SPP; ++i) {
+            const size_t si = base + i;
+            const int b = layered_bucket(depth[si], ka, kb, kc);
+            if (b < lo)
+                continue;
+            float2 q = vload2(si, position) - A * vload2(si, lens);
+#if HAS_MOTION
+            q -= (time[si] - 0.5f) * bm;
+#endif
+            const float gxf = (q.x - x0) * inv_s + g, gyf = (q.y - y0) * inv_s + g;
+            const float3 c = vload3(si, color);
+            const int own = b <= hi;
+#if SPLAT_BILINEAR
+            const float fx = gxf - 0.5f, fy = gyf - 0.5f;
+            const float ix = floor(fx), iy = floor(fy);
+            const float wx = fx - ix, wy = fy - iy;
+            if (ix < -1.0f || iy < -1.0f || ix >= dim || iy >= dim)
+                continue;
+            const int jx = (int)ix, jy = (int)iy;
+            splat(grid, dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own);
+            splat(grid, dim, jx + 1, jy, wx * (1.0f - wy), c, own);
+            splat(grid, dim, jx, jy + 1, (1.0f - wx) * wy, c, own);
+            splat(grid, dim, jx + 1, jy + 1, wx * wy, c, own);
+#else
+            if (gxf < 0.0f || gyf < 0.0f || gxf >= dim || gyf >= dim)
+                continue;
+            splat(grid, dim, (int)gxf, (int)gyf, 1.0f, c, own);
+#endif
+        }
+    }
+}

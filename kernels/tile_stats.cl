@@ -1,0 +1,69 @@
+/* tile_stats.cl: per screen tile and depth bucket, the count and the sums from which the
+ * mean and variance of CoC and motion follow (Hasselgren et al. 2015, section 4).
+ *
+ * tile_stats: one work-item per TILE x TILE tile (1D range over ntx * nty tiles).
+ *   depth   float (H, W, S); motion float (H, W, S, 2) (read only with HAS_MOTION)
+ *   stats   float (tiles, NBUCKETS, NSTAT): n, sum coc, sum coc^2, sum mx, sum my,
+ *           sum mx^2, sum my^2, sum mx*my (layered.h)
+ * A tile's samples are addressed a = m * S + i, m the Morton index of the pixel in the tile
+ * (TILE a power of two). Sparse statistics (stride n > 1): from each run of n addresses
+ * [j n, (j + 1) n) one address j n + r % n, r from a xorshift32 seeded by (seed, tile), is
+ * visited; stride 1 visits every sample. Addresses of pixels outside the image are skipped.
+ * coc(w) = c0 / w + c1 (misses: c1); buckets as in layered.h.
+ * Compile-time: SPP, TILE, NBUCKETS, HAS_MOTION. Tunables: WG_X (local size).
+ */
+#include "layered.h"
+
+#ifndef SPP
+#define SPP 8
+#endif
+#ifndef WG_X
+#define WG_X 8
+#endif
+
+__kernel void tile_stats(__global const float *depth, __global const float *motion,
+                         const int width, const int height, const int ntx, const int ntiles,
+                         const float ka, const float kb, const float kc, const float c0,
+                         const float c1, const int stride, const uint seed,
+                         __global float *stats)
+{
+    const int t = get_global_id(0);
+    if (t >= ntiles)
+        return;
+    const int x0 = (t % ntx) * TILE, y0 = (t / ntx) * TILE;
+    float acc[NBUCKETS * NSTAT];
+    for (int k = 0; k < NBUCKETS * NSTAT; ++k)
+        acc[k] = 0.0f;
+    uint state = (seed * 0x9E3779B9u) ^ ((uint)t * 0x85EBCA6Bu + 0x632BE5ABu);
+    if (state == 0u)
+        state = 1u;
+    const int total = TILE * TILE * SPP;
+    for (int j = 0; j < total; j += stride) {
+        int a = j;
+        if (stride > 1)
+            a += (int)(xorshift32(&state) % (uint)min(stride, total - j));
+        const uint m = (uint)(a / SPP);
+        const int x = x0 + (int)morton_even(m), y = y0 + (int)morton_even(m >> 1);
+        if (x >= width || y >= height)
+            continue;
+        const size_t s = ((size_t)y * width + x) * SPP + a % SPP;
+        const float w = depth[s];
+        const int b = layered_bucket(w, ka, kb, kc);
+        const float coc = (w < MISS_DEPTH) ? c0 / w + c1 : c1;
+        __private float *p = acc + b * NSTAT;
+        p[0] += 1.0f;
+        p[1] += coc;
+        p[2] += coc * coc;
+#if HAS_MOTION
+        const float2 mv = vload2(s, motion);
+        p[3] += mv.x;
+        p[4] += mv.y;
+        p[5] += mv.x * mv.x;
+        p[6] += mv.y * mv.y;
+        p[7] += mv.x * mv.y;
+#endif
+    }
+    __global float *out = stats + (size_t)t * NBUCKETS * NSTAT;
+    for (int k = 0; k < NBUCKETS * NSTAT; ++k)
+        out[k] = acc[k];
+}

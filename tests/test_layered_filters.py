@@ -1,0 +1,110 @@
+"""Passes ``filter_sheared`` (x recursive, y sheared Gaussian) and ``filter_rotated`` (LRDM)
+against the NumPy reference, and the sheared decomposition against the rotated Gaussian."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import assert_close
+from layered_frames import LAY, empty, fields, frame, kabc, read, to_device
+from test_layered_reproject import params_of
+
+from clrecon.layered import reference as ref
+from clrecon.layered.filter_mip import FilterMip
+from clrecon.layered.filter_rotated import FilterRotated
+from clrecon.layered.filter_sheared import FilterSheared
+
+
+def inputs(rng, lay=LAY):
+    buf = frame(rng, h=33, w=20)
+    params = params_of(buf, lay)
+    grids = ref.reproject(fields(buf), params.astype(np.float64), kabc(buf, lay), lay)
+    return params, grids
+
+
+def test_filter_sheared_matches_reference(device, rng):
+    params, grids = inputs(rng)
+    q = device.queue
+    nslots = params.shape[0] * params.shape[1]
+    fshape = params.shape[:2] + (ref.NCH, LAY.ft ** 2)
+    d_grids, filtered = to_device(q, grids), empty(q, fshape)
+    fs = FilterSheared(device.context, LAY)
+    ev = fs(q, to_device(q, params), d_grids, filtered, nslots)
+    got_x = read(q, d_grids, grids.shape, [ev])
+    got = read(q, filtered, fshape, [ev])
+    p64 = params.astype(np.float64)
+    want_x = ref.filter_sheared_x(p64, grids)
+    want = ref.filter_sheared_y(p64, want_x, LAY)
+    assert_close(np.concatenate([g.ravel() for g in ref.used_grid(got_x, params)]),
+                 np.concatenate([g.ravel() for g in ref.used_grid(want_x, params)]),
+                 rtol=1e-4, atol=1e-4, what="sheared x")
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, LAY)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, LAY)]),
+                 rtol=1e-4, atol=1e-4, what="sheared y")
+
+
+def test_filter_rotated_matches_reference(device, rng):
+    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
+    params, grids = inputs(rng, lay)
+    q = device.queue
+    nslots = params.shape[0] * params.shape[1]
+    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
+    filtered, tmp = empty(q, fshape), empty(q, grids.shape)
+    ev = FilterRotated(device.context, lay)(q, to_device(q, params), to_device(q, grids), tmp,
+                                            filtered, nslots)
+    got = read(q, filtered, fshape, [ev])
+    _, want = ref.filter_rotated(params.astype(np.float64), grids, lay)
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
+                 rtol=2e-4, atol=2e-4, what="rotated")
+
+
+@pytest.mark.parametrize("coc,motion", [(2.0, (5.0, 3.0)), (2.0, (3.0, 5.0)),
+                                        (0.2, (12.0, 1.5)), (0.2, (1.0, -12.0))],
+                         ids=["diag", "diag-steep", "thin-shallow", "thin-steep"])
+def test_sheared_and_rotated_agree_on_an_impulse(coc, motion):
+    """Both filters spread an impulse with the covariance of the partition (eq. 5 = eq. 7):
+    second moments of the filtered impulse match S within the truncation/recursion error.
+    The thin ellipses a few degrees off an axis are the case where eq. 9's form, one tap
+    per row, collapsed to a point (the transposed form is chosen there)."""
+    lay = ref.Layout(tile=16, nbuckets=4, maxp=1, gmax=16, spp=1)
+    mx, my = motion
+    s = np.array([1, coc, coc * coc, mx, my, mx * mx, my * my, mx * my])
+    p = ref._params(s, 0, 3, 0.33, lay)[None, None]
+    assert p[0, 0, ref.P_SCALE] == 1
+    dim = int(p[0, 0, ref.P_DIM])
+    grids = np.zeros((1, 1, ref.NCH, lay.dmax ** 2))
+    grids[0, 0, 3, (dim // 2) * dim + dim // 2] = 1.0
+    sh = ref.filter_sheared_y(p, ref.filter_sheared_x(p, grids), lay)
+    _, ro = ref.filter_rotated(p, grids, lay)
+    su, sv, a, xy, b = ref.partition_filter(s, 0.33)
+    n = lay.tile + 2
+    yy, xx = np.mgrid[0:n, 0:n] - (dim // 2 - int(p[0, 0, ref.P_GUARD]) + 1)
+    for img in (sh, ro):
+        im = img[0, 0, 3].reshape(n, n)
+        m = im / im.sum()
+        cov = [(m * xx * xx).sum(), (m * xx * yy).sum(), (m * yy * yy).sum()]
+        assert_close(cov, [a, xy, b], rtol=0.15, atol=0.15, what="impulse covariance")
+
+
+def test_filter_mip_matches_reference(device, rng):
+    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
+    params, grids = inputs(rng, lay)
+    q = device.queue
+    nslots = params.shape[0] * params.shape[1]
+    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
+    filtered = empty(q, fshape)
+    fm = FilterMip(device.context, lay)
+    pyr = empty(q, (nslots, ref.NCH, fm.plane))
+    ev = fm(q, to_device(q, params), to_device(q, grids), pyr, filtered, nslots)
+    got = read(q, filtered, fshape, [ev])
+    want = ref.filter_mip(params.astype(np.float64), grids, lay)
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
+                 rtol=2e-4, atol=2e-4, what="mip")
+
+
+def test_mip_pyramid_keeps_the_mean():
+    planes = np.random.default_rng(3).uniform(size=(ref.NCH, 16, 16))
+    levels = ref.mip_pyramid(planes)
+    assert [lv.shape[-1] for lv in levels] == [16, 8, 4, 2, 1]
+    assert_close([lv.mean() for lv in levels], [planes.mean()] * 5, rtol=1e-12, what="mean")
