@@ -156,6 +156,28 @@ def cmd_reconstruct(args) -> int:
     return 0
 
 
+def cmd_psf(args) -> int:
+    from .splat.precompute import SparsifyOptions, build_table, table_path
+
+    opts = SparsifyOptions(failures=args.failures, lloyd=args.lloyd, anneal=args.anneal,
+                           spacing=args.spacing)
+    bar = _Bar(f"psf {args.model}", unit="cells")
+    t0 = time.perf_counter()
+    try:
+        table = build_table(args.model, opts, progress=bar)
+    finally:
+        bar.close()
+    dt = time.perf_counter() - t0
+    out = Path(args.output) if args.output else table_path(args.model)
+    table.save(out)
+    size = out.stat().st_size
+    print(f"{args.model}: {table.cells} cells, {len(table.points)} spreadlets, mean sparsity "
+          f"{100 * table.sparsity().mean():.1f}%, mean L1 error {table.errors.mean():.3f}, "
+          f"{size / 1e6:.2f} MB, built in {dt:.0f} s (failures {opts.failures}, lloyd "
+          f"{opts.lloyd}, anneal {opts.anneal}) -> {out}")
+    return 0
+
+
 #: argparse destinations of ``reconstruct`` that are method knobs of the same name
 METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile")
 
@@ -430,6 +452,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--compare", default=None, metavar="OLD.json",
                     help="print the change against an earlier --json result")
     sp.set_defaults(fn=cmd_bench)
+
+    sp = sub.add_parser("psf", help="splat: pre-compute a PSF model's spreadlet table")
+    sp.add_argument("action", choices=("build",))
+    sp.add_argument("model", choices=("simplelens", "combined", "stylized"))
+    sp.add_argument("-o", "--output", default=None,
+                    help="default: the package's table (clrecon/splat/data/MODEL.npz)")
+    sp.add_argument("--failures", type=int, default=10_000, help="dart-throwing stop")
+    sp.add_argument("--lloyd", type=int, default=50, help="weighted Lloyd steps")
+    sp.add_argument("--anneal", type=int, default=400, help="simulated-annealing steps")
+    sp.add_argument("--spacing", type=float, default=0.5, help="dart radius scale")
+    sp.set_defaults(fn=cmd_psf)
     return p
 
 

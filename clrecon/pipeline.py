@@ -138,7 +138,11 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, **knobs) ->
 
 
 def _load_methods() -> None:
-    from . import box, sweep  # noqa: F401  (they register themselves)
+    from . import (  # noqa: F401  (they register themselves)
+        box,
+        splat,  # noqa: F401
+        sweep,
+    )
 
 
 @dataclass

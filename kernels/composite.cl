@@ -1,0 +1,51 @@
+/* composite.cl: back-to-front composition of splat's global depth layers with coverage
+ * re-weighting (Lee et al. 2008), one work-item per output pixel.
+ *
+ * composite_layers: for layer l = 0 (farthest) .. NLAYERS - 1, at padded pixel
+ * (x + pad, y + pad):
+ *   v   = (USE_LAP ? ring[l] - b[l] : 0) + direct[l]     (float4: RGB, coverage)
+ *   rgb = max(v.rgb, 0), cov = max(v.w, 0)
+ *   out = min(1, 1 / cov) * rgb + (1 - min(cov, 1)) * out,  alpha = min(cov, 1) + (1 - ..) alpha
+ * and writes out / alpha (0 where alpha <= COV_EPS): a flat field stays flat to the borders.
+ *   b, direct: float4 (NLAYERS, ph, pw); ring: float4 (NLAYERS); out: float (H, W, 3).
+ * Compile-time: NLAYERS, USE_LAP (0 when everything was drawn densely).
+ * Tunables: WG_X, WG_Y (2D local size, informative).
+ */
+#ifndef NLAYERS
+#define NLAYERS 1
+#endif
+#ifndef USE_LAP
+#define USE_LAP 1
+#endif
+#ifndef WG_X
+#define WG_X 16
+#endif
+#ifndef WG_Y
+#define WG_Y 4
+#endif
+#define COV_EPS 1e-7f
+
+__kernel void composite_layers(__global const float4 *b, __global const float4 *direct,
+                               __global const float4 *ring, const int width, const int height,
+                               const int pad, const int pw, const int ph, __global float *out)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= height)
+        return;
+    const size_t p = (size_t)(y + pad) * pw + (x + pad);
+    float3 acc = (float3)(0.0f);
+    float alpha = 0.0f;
+    for (int l = 0; l < NLAYERS; ++l) {
+        float4 v = direct[(size_t)l * ph * pw + p];
+#if USE_LAP
+        v += ring[l] - b[(size_t)l * ph * pw + p];
+#endif
+        const float3 rgb = fmax(v.xyz, 0.0f);
+        const float cov = fmax(v.w, 0.0f);
+        const float a = fmin(cov, 1.0f);
+        acc = fmin(1.0f, 1.0f / fmax(cov, 1e-30f)) * rgb + (1.0f - a) * acc;
+        alpha = a + (1.0f - a) * alpha;
+    }
+    const float3 res = alpha > COV_EPS ? acc / alpha : (float3)(0.0f);
+    vstore3(res, (size_t)y * width + x, out);
+}

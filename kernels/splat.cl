@@ -1,0 +1,129 @@
+/* splat.cl: Laplacian kernel splatting (Leimkuehler et al. 2018, section 6.2), one work-item
+ * per input sample.
+ *
+ * splat_samples: for sample k (index (y * W + x) * SPP + i of the SoA fields)
+ *   coc    = c0 / depth + c1 (c1 for misses, depth >= 1e30)
+ *   centre = position - coc * lens - (time - 0.5) * motion       (re-centring, section 6.2)
+ *   layer  = floor((1/depth - inv_far) * layer_scale), clamped to [0, NLAYERS)  (0 = farthest;
+ *            uniform in 1/depth: constant parallax; misses at 1/depth = 0)
+ *   cell   = the nested-grid cell of (|coc|) or (|coc|, |motion|) (O(1), see psf.py)
+ *   weight = (rgb, 1) / SPP
+ * and adds weight * value at pixel floor(centre) + offset + pad of every point of the cell:
+ *   fast[cell] != 0: the dense PSF (dpts/dvals/doffs) into `direct` (the fast track);
+ *   otherwise the spreadlets (pts/vals/offs) into `lap`, the layer's Laplacian image.
+ * With NDIM == 2 (Combined) offsets are rotated from +x to the motion direction and rounded.
+ * Images: float4 (RGB, coverage), (NLAYERS, PH, PW), PH = H + 2 pad, PW = W + 2 pad.
+ * Table: pts short2 (x, y), vals float, offs int (cells + 1); the same for d*; fast uchar.
+ * Grid: gn (n0, n1), gsmax (smax0, smax1), ginvb (1/beta0, 1/beta1), levels int4 per 2D level
+ *   (first cell, cells along axis 1, cells along axis 0, edge), nlev.
+ * Compile-time: SPP, NDIM (1 or 2), HAS_MOTION (0: motion ignored, time unused), NLAYERS.
+ * Tunables: WG (1D local size, informative).
+ * Precondition: pad >= max |offset| + max distance of a centre from its pixel, so every
+ * write lands inside the padded image (checked anyway: outside writes are dropped).
+ */
+#include "common.h"
+
+#ifndef SPP
+#define SPP 1
+#endif
+#ifndef NDIM
+#define NDIM 1
+#endif
+#ifndef HAS_MOTION
+#define HAS_MOTION 1
+#endif
+#ifndef NLAYERS
+#define NLAYERS 1
+#endif
+#ifndef WG
+#define WG 64
+#endif
+
+#define MISS_DEPTH 1e30f
+
+inline float splat_grid_coord(float s, float smax, float invb, int n)
+{
+    return (float)n * pow(clamp(s / smax, 0.0f, 1.0f), invb);
+}
+
+/* Cell index of PSF parameters (s0, s1): psf.py NestedGrid.index. */
+inline int splat_cell(float s0, float s1, int2 gn, float2 gsmax, float2 ginvb,
+                      __global const int4 *levels, int nlev)
+{
+    const float g0 = fmin(splat_grid_coord(s0, gsmax.x, ginvb.x, gn.x), (float)gn.x - 1e-3f);
+#if NDIM == 1
+    return (int)g0;
+#else
+    const float g1 = fmin(splat_grid_coord(s1, gsmax.y, ginvb.y, gn.y), (float)gn.y - 1e-3f);
+    const float m = fmin(g0, g1);
+    int l = (int)((sqrt(8.0f * m + 1.0f) - 1.0f) * 0.5f);
+    /* the float triangular root may be one off at level boundaries */
+    while (l > 0 && (float)(l * (l + 1) / 2) > m) --l;
+    while (l + 1 < nlev && (float)((l + 1) * (l + 2) / 2) <= m) ++l;
+    const int4 lv = levels[l];
+    const float t = (float)(l * (l + 1) / 2), e = (float)lv.w;
+    if (g0 < t + e)
+        return lv.x + min((int)((g1 - t) / e), lv.y - 1);
+    return lv.x + lv.y + min((int)((g0 - t - e) / e), lv.z - 1);
+#endif
+}
+
+__kernel void splat_samples(__global const float *color, __global const float *position,
+                            __global const float *depth, __global const float *lens,
+                            __global const float *time, __global const float *motion,
+                            const int nsamples, const float c0, const float c1,
+                            const float inv_far, const float layer_scale,
+                            const int pad, const int pw, const int ph,
+                            __global const short2 *pts, __global const float *vals,
+                            __global const int *offs, __global const short2 *dpts,
+                            __global const float *dvals, __global const int *doffs,
+                            __global const uchar *fast,
+                            const int2 gn, const float2 gsmax, const float2 ginvb,
+                            __global const int4 *levels, const int nlev,
+                            __global float *lap, __global float *direct)
+{
+    const int k = get_global_id(0);
+    if (k >= nsamples)
+        return;
+    const float z = depth[k];
+    const int miss = z >= MISS_DEPTH;
+    const float coc = miss ? c1 : c0 / z + c1;
+    float2 centre = vload2(k, position) - coc * vload2(k, lens);
+    float mlen = 0.0f;
+    float2 mdir = (float2)(1.0f, 0.0f);
+#if HAS_MOTION
+    const float2 mot = vload2(k, motion);
+    centre -= (time[k] - 0.5f) * mot;
+    mlen = length(mot);
+    if (mlen > 0.0f)
+        mdir = mot / mlen;
+#endif
+    const float inv = miss ? 0.0f : 1.0f / z;
+    const int layer = clamp((int)floor((inv - inv_far) * layer_scale), 0, NLAYERS - 1);
+    const int cell = splat_cell(fabs(coc), mlen, gn, gsmax, ginvb, levels, nlev);
+    const float4 wgt = (float4)(vload3(k, color), 1.0f) * (1.0f / (float)SPP);
+    const int cx = (int)floor(centre.x) + pad, cy = (int)floor(centre.y) + pad;
+    const int use_fast = fast[cell];
+    __global const short2 *p = use_fast ? dpts : pts;
+    __global const float *v = use_fast ? dvals : vals;
+    const int first = use_fast ? doffs[cell] : offs[cell];
+    const int last = use_fast ? doffs[cell + 1] : offs[cell + 1];
+    __global float *img = (use_fast ? direct : lap) + (size_t)layer * ph * pw * 4;
+    for (int j = first; j < last; ++j) {
+        const float2 o = convert_float2(p[j]);
+#if NDIM == 2
+        const int x = cx + (int)rint(o.x * mdir.x - o.y * mdir.y);
+        const int y = cy + (int)rint(o.x * mdir.y + o.y * mdir.x);
+#else
+        const int x = cx + (int)o.x, y = cy + (int)o.y;
+#endif
+        if (x < 0 || y < 0 || x >= pw || y >= ph)
+            continue;
+        const float4 c = v[j] * wgt;
+        __global float *dst = img + ((size_t)y * pw + x) * 4;
+        atomic_add_f32(dst + 0, c.x);
+        atomic_add_f32(dst + 1, c.y);
+        atomic_add_f32(dst + 2, c.z);
+        atomic_add_f32(dst + 3, c.w);
+    }
+}
