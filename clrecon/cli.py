@@ -86,8 +86,14 @@ def cmd_scene(args) -> int:
     scene = get_scene(args.name)
     w, h = args.size or scene.default_size
     t0 = time.perf_counter()
-    buf = _with_bar(f"render {args.name}", render_samples, scene, w, h, args.spp, seed=args.seed,
-                    device=args.device)
+    if args.pinhole:  # synthesis input: S = 1, lens 0, time 0.5
+        from .scenes.render import render_pinhole
+
+        args.spp = 1
+        buf = render_pinhole(scene, w, h, device=args.device)
+    else:
+        buf = _with_bar(f"render {args.name}", render_samples, scene, w, h, args.spp,
+                        seed=args.seed, device=args.device)
     dt = time.perf_counter() - t0
     save_samples(args.output, buf)
     info = buf.inspect()
@@ -180,6 +186,7 @@ def cmd_psf(args) -> int:
 
 #: argparse destinations of ``reconstruct`` that are method knobs of the same name
 METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile")
+METHOD_FLAGS += ("psf", "layers", "pyramid", "dense")  # splat
 
 
 def cmd_compare(args) -> int:
@@ -354,6 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--spp", type=int, default=8)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("-o", "--output", required=True, help=".bin/.txt (TLFR), .exr or .npz")
+    sp.add_argument("--pinhole", action="store_true",
+                    help="a pinhole frame (S = 1, lens 0, time 0.5): synthesis input of splat")
     dev(sp)
     sp.set_defaults(fn=cmd_scene)
 
@@ -379,6 +388,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--exponent", type=float, help="sweep: weight exponent (paper: 1.3)")
     sp.add_argument("--sort", choices=("tile", "pixel"), help="sweep: how the window is ordered")
     sp.add_argument("--tile", type=int, help="sweep: tile size of sort=tile")
+    sp.add_argument("--psf", choices=("simplelens", "combined", "stylized"),
+                    help="splat: PSF model (default: combined with motion, else simplelens)")
+    sp.add_argument("--layers", type=int, help="splat: global depth layers (default 4)")
+    sp.add_argument("--pyramid", choices=("f5", "f7"), help="splat: integration filter set")
+    sp.add_argument("--dense", action="store_true",
+                    help="splat: splat the dense PSF (the paper's Splatting baseline)")
     sp.add_argument("--json", action="store_true", help="print one JSON object")
     dev(sp)
     sp.set_defaults(fn=cmd_reconstruct)

@@ -97,3 +97,16 @@ def test_hdr_next_to_dark_and_64spp(device, rng):
     buf.motion[:] = (3.0, 1.0)
     img = clrecon.reconstruct(buf, "splat", device, psf="combined")
     assert_close(img.mean(), 2.0, rtol=0.01, what="identical samples")
+
+
+def test_pinhole_frame_is_the_synthesis_convention(device):
+    from clrecon.scenes import get_scene
+    from clrecon.scenes.render import render_pinhole, render_samples
+
+    scene = get_scene("bokeh")
+    buf = render_pinhole(scene, 24, 16, device=device).validate()
+    assert buf.shape == (16, 24, 1)
+    assert np.all(buf.lens == 0) and np.all(buf.time == 0.5)
+    np.testing.assert_array_equal(buf.position % 1.0, 0.5)
+    assert buf.coc_model == render_samples(scene, 24, 16, 1, device=device).coc_model
+    assert buf.inspect().max_abs_coc > 1.0  # the camera's defocus comes with it

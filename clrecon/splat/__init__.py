@@ -20,6 +20,8 @@ import pyopencl as cl
 
 from ..pipeline import DeviceSamples, Pipeline, register
 from ..samples import FIELDS
+from ..tune.runtime import tuned
+from ..tune.specs import local_size_of
 from .composite import Composite
 from .integrate import Integrate
 from .psf import MODELS
@@ -66,14 +68,25 @@ class SplatPipeline(Pipeline):
         img = self.layers * ph * pw * 16
         self.direct = cl.Buffer(context, rw, img)
         self.device_table = DeviceTable(context, self.table)
-        self.splat = Splat(context, info.spp, ndim, self.has_motion, self.layers)
-        self.composite = Composite(context, self.layers, self.use_lap)
+        self.tuning: dict[str, str] = {}
+
+        def config(pass_name):
+            found = tuned(context, pass_name, info)
+            self.tuning[pass_name] = found.source
+            return found.config
+
+        cfg = config("splat")
+        self.splat = Splat(context, info.spp, ndim, self.has_motion, self.layers,
+                           None if cfg is None else int(cfg["wg"]))
+        self.composite = Composite(context, self.layers, self.use_lap,
+                                   local_size_of(config("composite")))
         self.ring = cl.Buffer(context, rw, self.layers * 16)
         self.pyramid = pyramid
         if self.use_lap:
             self.lap = cl.Buffer(context, rw, img)
             self.prim = cl.Buffer(context, rw, img)
-            self.integrate = Integrate(context, ph, pw, pyramid)
+            self.integrate = Integrate(context, ph, pw, pyramid,
+                                       local_size_of(config("integrate")))
         else:
             self.lap = self.prim = self.direct
             self.integrate = None
@@ -84,7 +97,8 @@ class SplatPipeline(Pipeline):
                 "pyramid": self.pyramid if self.use_lap else None,
                 "integrate": self.use_lap, "has_motion": self.has_motion, "pad": self.pad,
                 "fast_ratio": self.fast_ratio,
-                "fast_cells": int(self.table.fast.sum()), "cells": len(self.table.fast)}
+                "fast_cells": int(self.table.fast.sum()), "cells": len(self.table.fast),
+                "tuning": self.tuning}
 
     def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
         w, h = samples.width, samples.height

@@ -30,6 +30,7 @@ class Integrate:
         self.down = get_kernel(context, "integrate", "integrate_down", defines)
         self.up = get_kernel(context, "integrate", "integrate_up", defines)
         self.ring = get_kernel(context, "integrate", "integrate_ring", defines)
+        self.kernel = self.up  # the 2D kernels share the local size; the tuner queries one
         pad = len(PYRAMIDS[pyramid][0])
         self.shapes = pyramid_shapes(height, width, pad)
         rw = cl.mem_flags.READ_WRITE
