@@ -3,7 +3,10 @@
  *
  * splat_samples: for sample k (index (y * W + x) * SPP + i of the SoA fields)
  *   coc    = c0 / depth + c1 (c1 for misses, depth >= 1e30)
- *   centre = position - coc * lens - (time - 0.5) * motion       (re-centring, section 6.2)
+ *   centre = position - coc * lens - (time - 0.5) * motion       (re-centring, section 6.2;
+ *            coc and motion scaled down to the table's range where they exceed it, so the
+ *            sample stays inside the clamped PSF; with NDIM == 1 the PSF has no motion and
+ *            the motion term is not re-centred)
  *   layer  = floor((1/depth - inv_far) * layer_scale), clamped to [0, NLAYERS)  (0 = farthest;
  *            uniform in 1/depth: constant parallax; misses at 1/depth = 0)
  *   cell   = the nested-grid cell of (|coc|) or (|coc|, |motion|) (O(1), see psf.py)
@@ -16,10 +19,12 @@
  * Table: pts short2 (x, y), vals float, offs int (cells + 1); the same for d*; fast uchar.
  * Grid: gn (n0, n1), gsmax (smax0, smax1), ginvb (1/beta0, 1/beta1), levels int4 per 2D level
  *   (first cell, cells along axis 1, cells along axis 0, edge), nlev.
- * Compile-time: SPP, NDIM (1 or 2), HAS_MOTION (0: motion ignored, time unused), NLAYERS.
+ * Compile-time: SPP, NDIM (1 or 2), HAS_MOTION (0: motion and time unused), NLAYERS.
  * Tunables: WG (1D local size, informative).
- * Precondition: pad >= max |offset| + max distance of a centre from its pixel, so every
- * write lands inside the padded image (checked anyway: outside writes are dropped).
+ * Samples whose PSF would not fit whole into the padded image (centre closer than `reach`,
+ * an upper bound of |offset| after rotation and rounding, to its border) are skipped: a
+ * partial Laplacian would corrupt the integration. The host makes the pad wide enough that
+ * only samples whose PSF cannot reach the frame are skipped.
  */
 #include "common.h"
 
@@ -73,7 +78,7 @@ __kernel void splat_samples(__global const float *color, __global const float *p
                             __global const float *time, __global const float *motion,
                             const int nsamples, const float c0, const float c1,
                             const float inv_far, const float layer_scale,
-                            const int pad, const int pw, const int ph,
+                            const int pad, const int pw, const int ph, const int reach,
                             __global const short2 *pts, __global const float *vals,
                             __global const int *offs, __global const short2 *dpts,
                             __global const float *dvals, __global const int *doffs,
@@ -88,13 +93,17 @@ __kernel void splat_samples(__global const float *color, __global const float *p
     const float z = depth[k];
     const int miss = z >= MISS_DEPTH;
     const float coc = miss ? c1 : c0 / z + c1;
-    float2 centre = vload2(k, position) - coc * vload2(k, lens);
+    /* beyond the table's range the PSF is clamped: re-centre by the clamped CoC (motion) so
+     * that the sample stays inside the PSF that is drawn */
+    const float cscale = fabs(coc) > gsmax.x ? gsmax.x / fabs(coc) : 1.0f;
+    float2 centre = vload2(k, position) - (coc * cscale) * vload2(k, lens);
     float mlen = 0.0f;
     float2 mdir = (float2)(1.0f, 0.0f);
-#if HAS_MOTION
+#if HAS_MOTION && NDIM == 2
     const float2 mot = vload2(k, motion);
-    centre -= (time[k] - 0.5f) * mot;
     mlen = length(mot);
+    const float mscale = mlen > gsmax.y ? gsmax.y / mlen : 1.0f;
+    centre -= ((time[k] - 0.5f) * mscale) * mot;
     if (mlen > 0.0f)
         mdir = mot / mlen;
 #endif
@@ -102,7 +111,10 @@ __kernel void splat_samples(__global const float *color, __global const float *p
     const int layer = clamp((int)floor((inv - inv_far) * layer_scale), 0, NLAYERS - 1);
     const int cell = splat_cell(fabs(coc), mlen, gn, gsmax, ginvb, levels, nlev);
     const float4 wgt = (float4)(vload3(k, color), 1.0f) * (1.0f / (float)SPP);
-    const int cx = (int)floor(centre.x) + pad, cy = (int)floor(centre.y) + pad;
+    const float fx = floor(centre.x) + pad, fy = floor(centre.y) + pad;
+    if (!(fx >= reach && fy >= reach && fx < pw - reach && fy < ph - reach))
+        return;
+    const int cx = (int)fx, cy = (int)fy;
     const int use_fast = fast[cell];
     __global const short2 *p = use_fast ? dpts : pts;
     __global const float *v = use_fast ? dvals : vals;
@@ -117,8 +129,6 @@ __kernel void splat_samples(__global const float *color, __global const float *p
 #else
         const int x = cx + (int)o.x, y = cy + (int)o.y;
 #endif
-        if (x < 0 || y < 0 || x >= pw || y >= ph)
-            continue;
         const float4 c = v[j] * wgt;
         __global float *dst = img + ((size_t)y * pw + x) * 4;
         atomic_add_f32(dst + 0, c.x);

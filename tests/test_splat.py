@@ -19,8 +19,8 @@ def reference_method(device, buf, **knobs):
     t = pipe.table
     inv_near = pipe.inv_far + pipe.layers / pipe.layer_scale if pipe.layer_scale else pipe.inv_far
     lap, direct = ref.splat(buf, t.as_tuple(), t.model.cell_of, pipe.layers,
-                            (pipe.inv_far, inv_near), pipe.pad, t.fast.astype(bool),
-                            rotate=len(t.model.n) == 2)
+                            (pipe.inv_far, inv_near), pipe.pad, pipe.reach, t.fast.astype(bool),
+                            rotate=len(t.model.n) == 2, smax=t.model.smax)
     prim = np.zeros_like(lap)
     if pipe.use_lap:
         for layer in range(pipe.layers):

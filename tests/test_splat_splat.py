@@ -19,7 +19,7 @@ def run_splat(device, buf, **knobs):
     size = pipe.layers * pipe.shape[0] * pipe.shape[1] * 16
     evs = [cl.enqueue_fill_buffer(q, b, np.float32(0), 0, size) for b in {pipe.lap, pipe.direct}]
     pipe.splat(q, samples, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad,
-               pipe.lap, pipe.direct, evs)
+               pipe.reach, pipe.lap, pipe.direct, evs)
     shape = (pipe.layers, *pipe.shape, 4)
     lap, direct = np.empty(shape, np.float32), np.empty(shape, np.float32)
     cl.enqueue_copy(q, lap, pipe.lap)
@@ -32,7 +32,8 @@ def reference_splat(pipe, buf):
     t = pipe.table
     inv_near = pipe.inv_far + pipe.layers / pipe.layer_scale if pipe.layer_scale else pipe.inv_far
     return ref.splat(buf, t.as_tuple(), t.model.cell_of, pipe.layers, (pipe.inv_far, inv_near),
-                     pipe.pad, t.fast.astype(bool), rotate=len(t.model.n) == 2)
+                     pipe.pad, pipe.reach, t.fast.astype(bool), rotate=len(t.model.n) == 2,
+                     smax=t.model.smax)
 
 
 @pytest.mark.parametrize("knobs,motion", [
@@ -68,3 +69,16 @@ def test_lookup_matches_nested_grid(device, rng):
     want_lap, want_direct = reference_splat(pipe, buf)
     scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
     assert_close(lap[..., 3], want_lap[..., 3], rtol=1e-4, atol=1e-6 * scale, what="coverage")
+
+
+def test_motion_beyond_the_table_is_clamped(device, rng):
+    """Motion of ~1000 px (the Combined table ends at 192 px): re-centring uses the clamped
+    motion, so the pad stays bounded by the PSF reach and kernel and reference agree."""
+    buf = frame(rng, h=8, w=9, s=4, motion=False)
+    buf.motion[:] = rng.normal(0, 700.0, buf.motion.shape)
+    pipe, lap, direct = run_splat(device, buf, psf="combined", layers=1)
+    assert pipe.pad <= 2 * pipe.reach + 2 < buf.inspect().max_abs_motion / 2
+    want_lap, want_direct = reference_splat(pipe, buf)
+    scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
+    assert_close(lap, want_lap, rtol=1e-4, atol=1e-6 * scale, what="laplacian")
+    assert_close(direct, want_direct, rtol=1e-4, atol=1e-6 * scale, what="direct")

@@ -7,7 +7,8 @@ densely into per-layer direct images) -> ``integrate`` (convolution pyramid per 
 
 Knobs: ``psf`` (``"simplelens"``, ``"combined"``, ``"stylized"``; default from the frame:
 ``combined`` when it has motion, else ``simplelens``), ``layers`` (global depth layers,
-uniform in 1/depth; 1 when the frame has a single depth), ``pyramid`` (``"f5"``/``"f7"``),
+uniform in 1/depth; 1 when the frame has a single depth), ``pyramid`` (``"f7"`` default:
+bokeh synthesis SSIM .972 against .961 with ``"f5"``),
 ``dense`` (the dense PSF splatted directly: the paper's "Splatting" baseline), ``fast_ratio``
 (a cell is drawn densely when its dense PSF has at most this many times its spreadlet count).
 When every cell the frame can reach is on the fast track (e.g. a static in-focus frame) the
@@ -37,7 +38,7 @@ class SplatPipeline(Pipeline):
     fields = tuple(FIELDS)
 
     def __init__(self, context, info, psf: str | None = None, layers: int = 4,
-                 pyramid: str = "f5", dense: bool = False, fast_ratio: float = 1.0):
+                 pyramid: str = "f7", dense: bool = False, fast_ratio: float = 1.0):
         super().__init__(context, info)
         if psf is not None and psf not in MODELS:
             raise ValueError(f"psf: expected one of {sorted(MODELS)}, got {psf!r}")
@@ -51,9 +52,15 @@ class SplatPipeline(Pipeline):
         self.table = host_table(self.psf, self.dense, self.fast_ratio)
         ndim = len(self.table.model.n)
         reach = self.table.reachable(info)
-        # the furthest a centre lies from its sample, plus the largest reachable PSF
-        shift = info.max_abs_coc + 0.5 * info.max_abs_motion if info.spp > 0 else 0.0
-        self.pad = int(np.ceil(self.table.radius[reach].max(initial=0.0) + shift)) + 2
+        # reach: |offset| bound of every reachable PSF (rotation and rounding: + 1). The pad
+        # holds any PSF whose centre is within reach of the frame (a centre lies at most
+        # |coc| + |motion| / 2 from its sample); samples further out cannot touch the frame
+        # and the kernel skips them.
+        self.reach = int(np.ceil(self.table.radius[reach].max(initial=0.0))) + 1
+        smax = self.table.model.smax
+        motion = min(info.max_abs_motion, smax[-1]) if ndim == 2 else 0.0
+        shift = min(min(info.max_abs_coc, smax[0]) + 0.5 * motion, float(self.reach))
+        self.pad = self.reach + int(np.ceil(shift)) + 2
         hits = info.miss_fraction < 1.0
         inv_near = 1.0 / info.min_depth if hits else 0.0
         inv_far = 0.0 if info.miss_fraction > 0 or not hits else 1.0 / info.max_depth
@@ -96,7 +103,7 @@ class SplatPipeline(Pipeline):
                 "mode": "dense" if self.dense else "sparse", "layers": self.layers,
                 "pyramid": self.pyramid if self.use_lap else None,
                 "integrate": self.use_lap, "has_motion": self.has_motion, "pad": self.pad,
-                "fast_ratio": self.fast_ratio,
+                "reach": self.reach, "fast_ratio": self.fast_ratio,
                 "fast_cells": int(self.table.fast.sum()), "cells": len(self.table.fast),
                 "tuning": self.tuning}
 
@@ -111,7 +118,7 @@ class SplatPipeline(Pipeline):
         for ev in evs:
             self.events.append(("clear", ev))
         ev = self.splat(queue, samples, self.device_table, self.inv_far, self.layer_scale,
-                        self.pad, self.lap, self.direct, evs)
+                        self.pad, self.reach, self.lap, self.direct, evs)
         self.events.append(("splat", ev))
         if self.use_lap:
             for layer in range(self.layers):

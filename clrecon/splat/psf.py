@@ -193,8 +193,10 @@ class Combined(PsfModel):
 
     name = "combined"
     smax: tuple[float, ...] = (96.0, 192.0)
-    beta: tuple[float, ...] = (2.0, 1.0)
-    n: tuple[int, ...] = (24, 24)
+    # beta 2 on motion too (paper: 1.0): static and slow pixels then get cells < 0.5 px wide
+    # instead of being pre-filtered over 8 px of motion
+    beta: tuple[float, ...] = (2.0, 2.0)
+    n: tuple[int, ...] = (32, 40)
 
     def extent(self, s):
         r = max(float(s[0]), 0.5)

@@ -15,9 +15,11 @@ Conventions shared with the kernels:
   2011, REFERENCES.md) and anchors ``u`` so that the outermost ring of the padded image is 0
   on average (the padding is wider than any PSF, so the true image is 0 there);
 * ``composite``: back to front, per layer ``rgb, cov`` (integrated Laplacian plus the
-  direct image), ``rgb`` and ``cov`` clamped at 0; ``k = min(1, 1 / cov)``,
-  ``out = k rgb + (1 - min(cov, 1)) out``; the farthest layer is normalised by its coverage
-  (``out = rgb / cov`` where ``cov > eps``) so that a flat field stays flat at the borders.
+  direct image) clamped at 0; a layer with ``cov > eps`` contributes its normalised colour
+  ``rgb / cov`` with weight ``a = min(cov, 1)``, except the farthest layer with
+  ``cov >= FILL_COV`` (0.1), which takes ``a = 1`` (it fills the holes nearer surfaces left in
+  its coverage): ``out = a colour + (1 - a) out``, divided at the end by the accumulated
+  alpha (1 once a layer filled the pixel).
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ import numpy as np
 
 MISS_DEPTH = 1e30
 COV_EPS = 1e-7
+FILL_COV = 0.1
 
 F5 = (np.array([0.15, 0.5, 0.7, 0.5, 0.15]), None, np.array([0.175, 0.547, 0.175]))
 F7_H1 = np.array([0.06110, 0.26177, 0.53034, 0.65934, 0.53034, 0.26177, 0.06110])
@@ -92,13 +95,15 @@ def layer_of(depth: np.ndarray, inv_far: float, inv_near: float, nlayers: int) -
 
 
 def splat(buf, table, grid, nlayers: int, inv_range: tuple[float, float], pad: int,
-          fast: np.ndarray, rotate: bool):
+          reach: int, fast: np.ndarray, rotate: bool, smax: tuple[float, ...]):
     """The ``splat`` pass: per-layer Laplacian and direct images, each
     ``(nl, H + 2 pad, W + 2 pad, 4)``.
 
     ``table``: (points (x, y), values, offsets, dense points, dense values, dense offsets);
     ``grid``: a callable mapping PSF parameters (k, ndim) to cell indices; ``fast``: per cell,
-    whether it is drawn densely (fast track) into the direct image.
+    whether it is drawn densely (fast track) into the direct image; ``rotate``: a 2D (CoC,
+    motion) model; ``smax``: the model's parameter ranges. Samples whose centre pixel lies
+    closer than ``reach`` to the padded image's border are skipped.
     """
     pts, vals, offs, dpts, dvals, doffs = table
     h, w, s = buf.shape
@@ -110,10 +115,18 @@ def splat(buf, table, grid, nlayers: int, inv_range: tuple[float, float], pad: i
                    buf.coc_model.c0 / np.where(depth >= MISS_DEPTH, 1.0, depth)
                    + buf.coc_model.c1)
     mot = buf.motion.reshape(-1, 2).astype(np.float64)
-    # float32 like the kernel (floor of the centre must agree)
+    # float32 like the kernel (floor of the centre must agree); coc and motion beyond the
+    # table's range re-centre by their clamped values
+    smax = np.asarray(smax, np.float32)
     coc32, pos = coc.astype(np.float32), buf.position.reshape(-1, 2)
-    centre = pos - coc32[:, None] * buf.lens.reshape(-1, 2)
-    centre = centre - (buf.time.reshape(-1) - np.float32(0.5))[:, None] * buf.motion.reshape(-1, 2)
+    a32 = np.abs(coc32)
+    cs = np.where(a32 > smax[0], smax[0] / np.where(a32 > 0, a32, 1), np.float32(1))
+    centre = pos - (coc32 * cs)[:, None] * buf.lens.reshape(-1, 2)
+    if rotate:
+        m32 = buf.motion.reshape(-1, 2)
+        l32 = np.hypot(m32[:, 0], m32[:, 1]).astype(np.float32)
+        ms = np.where(l32 > smax[-1], smax[-1] / np.where(l32 > 0, l32, 1), np.float32(1))
+        centre = centre - ((buf.time.reshape(-1) - np.float32(0.5)) * ms)[:, None] * m32
     layer = layer_of(depth, *inv_range, nlayers)
     mlen = np.hypot(mot[:, 0], mot[:, 1])
     params = np.stack([np.abs(coc), mlen], -1) if rotate else np.abs(coc)[:, None]
@@ -131,23 +144,30 @@ def splat(buf, table, grid, nlayers: int, inv_range: tuple[float, float], pad: i
             m32 = mot[k].astype(np.float32)
             cs, sn = m32 / np.float32(np.hypot(*m32))
             dx, dy = np.rint(dx * cs - dy * sn), np.rint(dx * sn + dy * cs)
-        x = (np.floor(centre[k, 0]) + dx + pad).astype(np.int64)
-        y = (np.floor(centre[k, 1]) + dy + pad).astype(np.int64)
-        ok = (x >= 0) & (x < pw) & (y >= 0) & (y < ph)
-        np.add.at(img[layer[k]], (y[ok], x[ok]), v[ok, None] * col[k][None, :])
+        cx, cy = np.floor(centre[k, 0]) + pad, np.floor(centre[k, 1]) + pad
+        if not (reach <= cx < pw - reach and reach <= cy < ph - reach):
+            continue
+        x, y = (cx + dx).astype(np.int64), (cy + dy).astype(np.int64)
+        np.add.at(img[layer[k]], (y, x), v[:, None] * col[k][None, :])
     return lap, direct
 
 
-def composite(prim: np.ndarray, direct: np.ndarray, pad: int, h: int, w: int) -> np.ndarray:
+def composite(prim: np.ndarray, direct: np.ndarray, pad: int, h: int, w: int,
+              fill_cov: float = FILL_COV) -> np.ndarray:
     """The ``composite`` pass: (H, W, 3) from the per-layer anchored integrals ``prim`` (the
     image, not the Laplacian) and direct images, back to front (layer 0 the farthest)."""
     out = np.zeros((h, w, 3))
     alpha = np.zeros((h, w))
+    filled = np.zeros((h, w), bool)
     for layer in range(prim.shape[0]):
         v = (prim[layer] + direct[layer])[pad:pad + h, pad:pad + w]
         rgb, cov = np.maximum(v[..., :3], 0.0), np.maximum(v[..., 3], 0.0)
-        k = np.minimum(1.0, 1.0 / np.maximum(cov, 1e-30))
-        a = np.minimum(cov, 1.0)
-        out = k[..., None] * rgb + (1.0 - a)[..., None] * out
+        present = cov > COV_EPS
+        colour = rgb / np.where(present, cov, 1.0)[..., None]
+        fill = ~filled & (cov >= fill_cov)
+        a = np.where(fill, 1.0, np.minimum(cov, 1.0))
+        a = np.where(present, a, 0.0)
+        out = a[..., None] * colour + (1.0 - a[..., None]) * out
         alpha = a + (1.0 - a) * alpha
-    return np.where(alpha[..., None] > COV_EPS, out / np.maximum(alpha, COV_EPS)[..., None], 0.0)
+        filled |= fill
+    return np.where(alpha[..., None] > 0, out / np.where(alpha > 0, alpha, 1.0)[..., None], 0.0)

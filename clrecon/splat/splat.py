@@ -23,7 +23,7 @@ class Splat:
                                   "NLAYERS": nlayers})
 
     def __call__(self, queue, samples: DeviceSamples, table: DeviceTable, inv_far: float,
-                 layer_scale: float, pad: int, lap: cl.Buffer, direct: cl.Buffer,
+                 layer_scale: float, pad: int, reach: int, lap: cl.Buffer, direct: cl.Buffer,
                  wait_for=None) -> cl.Event:
         n = samples.height * samples.width * samples.spp
         c0, c1 = samples.coc
@@ -32,8 +32,8 @@ class Splat:
             samples["color"], samples["position"], samples["depth"], samples["lens"],
             samples["time"], samples["motion"], np.int32(n), np.float32(c0), np.float32(c1),
             np.float32(inv_far), np.float32(layer_scale), np.int32(pad), np.int32(pw),
-            np.int32(ph), table.pts, table.vals, table.offs, table.dpts, table.dvals,
-            table.doffs, table.fast, table.gn, table.gsmax, table.ginvb, table.levels,
+            np.int32(ph), np.int32(reach), table.pts, table.vals, table.offs, table.dpts,
+            table.dvals, table.doffs, table.fast, table.gn, table.gsmax, table.ginvb, table.levels,
             np.int32(table.nlev), lap, direct)
         if self.wg is None:
             return cl.enqueue_nd_range_kernel(queue, self.kernel, (n,), None, wait_for=wait_for)

@@ -245,8 +245,8 @@ def _splat_runner(dev, w, h, spp):
     def launch(p, q, out):
         # accumulating pass: clear first (fast-track cells go to pipe.direct, not checked)
         ev = cl.enqueue_fill_buffer(q, out, np.float32(0), 0, n * 4)
-        return p(q, s, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad, out,
-                 pipe.direct, [ev])
+        return p(q, s, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad, pipe.reach,
+                 out, pipe.direct, [ev])
 
     return PassRunner(dev, lambda c: Splat(dev.context, spp, 2, True, pipe.layers,
                                            None if c is None else int(c["wg"])),
@@ -260,8 +260,8 @@ def _integrate_runner(dev, w, h, spp):
     q = dev.queue
     size = pipe.layers * pipe.shape[0] * pipe.shape[1] * 16
     evs = [cl.enqueue_fill_buffer(q, b, np.float32(0), 0, size) for b in (pipe.lap, pipe.direct)]
-    pipe.splat(q, s, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad, pipe.lap,
-               pipe.direct, evs).wait()
+    pipe.splat(q, s, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad, pipe.reach,
+               pipe.lap, pipe.direct, evs).wait()
     ring = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, pipe.layers * 16)
     return PassRunner(dev, lambda c: Integrate(dev.context, *pipe.shape, "f5", local_size_of(c)),
                       lambda p, q, out: p(q, pipe.lap, 0, out, ring),
