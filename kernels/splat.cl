@@ -1,7 +1,9 @@
 /* splat.cl: Laplacian kernel splatting (Leimkuehler et al. 2018, section 6.2), one work-item
  * per input sample.
  *
- * splat_samples: for sample k (index (y * W + x) * SPP + i of the SoA fields)
+ * splat_samples (one work-item per sample, atomic adds) and splat_tiles (one work-item per
+ * screen tile, k x k phases, plain adds: for CPUs, where float atomics are CAS loops ~10x the
+ * cost of an add) draw, for sample k (index (y * W + x) * SPP + i of the SoA fields)
  *   coc    = c0 / depth + c1 (c1 for misses, depth >= 1e30)
  *   centre = position - coc * lens - (time - 0.5) * motion       (re-centring, section 6.2;
  *            coc and motion scaled down to the table's range where they exceed it, so the
@@ -73,23 +75,24 @@ inline int splat_cell(float s0, float s1, int2 gn, float2 gsmax, float2 ginvb,
 #endif
 }
 
-__kernel void splat_samples(__global const float *color, __global const float *position,
-                            __global const float *depth, __global const float *lens,
-                            __global const float *time, __global const float *motion,
-                            const int nsamples, const float c0, const float c1,
-                            const float inv_far, const float layer_scale,
-                            const int pad, const int pw, const int ph, const int reach,
-                            __global const short2 *pts, __global const float *vals,
-                            __global const int *offs, __global const short2 *dpts,
-                            __global const float *dvals, __global const int *doffs,
-                            __global const uchar *fast,
-                            const int2 gn, const float2 gsmax, const float2 ginvb,
-                            __global const int4 *levels, const int nlev,
-                            __global float *lap, __global float *direct)
+/* The arguments every splat kernel shares (layouts in the header). */
+#define SPLAT_ARGS \
+    __global const float *color, __global const float *position, \
+    __global const float *depth, __global const float *lens, __global const float *time, \
+    __global const float *motion, const int nsamples, const float c0, const float c1, \
+    const float inv_far, const float layer_scale, const int pad, const int pw, const int ph, \
+    const int reach, __global const short2 *pts, __global const float *vals, \
+    __global const int *offs, __global const short2 *dpts, __global const float *dvals, \
+    __global const int *doffs, __global const uchar *fast, const int2 gn, \
+    const float2 gsmax, const float2 ginvb, __global const int4 *levels, const int nlev, \
+    __global float *lap, __global float *direct
+#define SPLAT_PASS color, position, depth, lens, time, motion, nsamples, c0, c1, inv_far, \
+    layer_scale, pad, pw, ph, reach, pts, vals, offs, dpts, dvals, doffs, fast, gn, gsmax, \
+    ginvb, levels, nlev, lap, direct
+
+/* Draw sample k; atomic: 0 only where no other work-item can write the same pixels. */
+inline void splat_one(const int k, const int atomic, SPLAT_ARGS)
 {
-    const int k = get_global_id(0);
-    if (k >= nsamples)
-        return;
     const float z = depth[k];
     const int miss = z >= MISS_DEPTH;
     const float coc = miss ? c1 : c0 / z + c1;
@@ -131,9 +134,40 @@ __kernel void splat_samples(__global const float *color, __global const float *p
 #endif
         const float4 c = v[j] * wgt;
         __global float *dst = img + ((size_t)y * pw + x) * 4;
-        atomic_add_f32(dst + 0, c.x);
-        atomic_add_f32(dst + 1, c.y);
-        atomic_add_f32(dst + 2, c.z);
-        atomic_add_f32(dst + 3, c.w);
+        if (atomic) {
+            atomic_add_f32(dst + 0, c.x);
+            atomic_add_f32(dst + 1, c.y);
+            atomic_add_f32(dst + 2, c.z);
+            atomic_add_f32(dst + 3, c.w);
+        } else {
+            vstore4(vload4(0, dst) + c, 0, dst);
+        }
     }
+}
+
+/* One work-item per sample, atomic adds (any device). */
+__kernel void splat_samples(SPLAT_ARGS)
+{
+    const int k = get_global_id(0);
+    if (k < nsamples)
+        splat_one(k, 1, SPLAT_PASS);
+}
+
+/* One work-item per tile of tile x tile pixels, tiles (k i + phase_x, k j + phase_y): every
+ * sample of the tile's pixels in order, plain adds. The host launches the k x k phases in
+ * turn with (k - 1) * tile > 2 R - 1, R = reach + the largest centre shift + 1 (how far from
+ * its pixel a sample writes), so the pixels two tiles of one phase write never overlap: no
+ * atomics, and a fixed summation order (reproducible). */
+__kernel void splat_tiles(SPLAT_ARGS, const int width, const int height, const int tile,
+                          const int k, const int phase_x, const int phase_y)
+{
+    const int x0 = (k * get_global_id(0) + phase_x) * tile;
+    const int y0 = (k * get_global_id(1) + phase_y) * tile;
+    if (x0 >= width || y0 >= height)
+        return;
+    const int x1 = min(x0 + tile, width), y1 = min(y0 + tile, height);
+    for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x)
+            for (int i = 0; i < SPP; ++i)
+                splat_one((y * width + x) * SPP + i, 0, SPLAT_PASS);
 }

@@ -10,7 +10,9 @@ Knobs: ``psf`` (``"simplelens"``, ``"combined"``, ``"stylized"``; default from t
 uniform in 1/depth; 1 when the frame has a single depth), ``pyramid`` (``"f7"`` default:
 bokeh synthesis SSIM .972 against .961 with ``"f5"``),
 ``dense`` (the dense PSF splatted directly: the paper's "Splatting" baseline), ``fast_ratio``
-(a cell is drawn densely when its dense PSF has at most this many times its spreadlet count).
+(a cell is drawn densely when its dense PSF has at most this many times its spreadlet count),
+``scatter`` (``"atomic"`` or ``"tiles"``; default ``"tiles"`` on CPU devices, see
+:mod:`clrecon.splat.splat`).
 When every cell the frame can reach is on the fast track (e.g. a static in-focus frame) the
 Laplacian images and the integration are skipped.
 """
@@ -38,7 +40,8 @@ class SplatPipeline(Pipeline):
     fields = tuple(FIELDS)
 
     def __init__(self, context, info, psf: str | None = None, layers: int = 4,
-                 pyramid: str = "f7", dense: bool = False, fast_ratio: float = 1.0):
+                 pyramid: str = "f7", dense: bool = False, fast_ratio: float = 1.0,
+                 scatter: str | None = None):
         super().__init__(context, info)
         if psf is not None and psf not in MODELS:
             raise ValueError(f"psf: expected one of {sorted(MODELS)}, got {psf!r}")
@@ -59,8 +62,8 @@ class SplatPipeline(Pipeline):
         self.reach = int(np.ceil(self.table.radius[reach].max(initial=0.0))) + 1
         smax = self.table.model.smax
         motion = min(info.max_abs_motion, smax[-1]) if ndim == 2 else 0.0
-        shift = min(min(info.max_abs_coc, smax[0]) + 0.5 * motion, float(self.reach))
-        self.pad = self.reach + int(np.ceil(shift)) + 2
+        self.shift = min(info.max_abs_coc, smax[0]) + 0.5 * motion
+        self.pad = self.reach + int(np.ceil(min(self.shift, float(self.reach)))) + 2
         hits = info.miss_fraction < 1.0
         inv_near = 1.0 / info.min_depth if hits else 0.0
         inv_far = 0.0 if info.miss_fraction > 0 or not hits else 1.0 / info.max_depth
@@ -82,9 +85,12 @@ class SplatPipeline(Pipeline):
             self.tuning[pass_name] = found.source
             return found.config
 
+        if scatter is None:  # CAS float atomics cost ~10 plain adds on CPUs
+            cpu = bool(context.devices[0].type & cl.device_type.CPU)
+            scatter = "tiles" if cpu else "atomic"
         cfg = config("splat")
         self.splat = Splat(context, info.spp, ndim, self.has_motion, self.layers,
-                           None if cfg is None else int(cfg["wg"]))
+                           None if cfg is None else int(cfg["wg"]), scatter)
         self.composite = Composite(context, self.layers, self.use_lap,
                                    local_size_of(config("composite")))
         self.ring = cl.Buffer(context, rw, self.layers * 16)
@@ -104,6 +110,7 @@ class SplatPipeline(Pipeline):
                 "pyramid": self.pyramid if self.use_lap else None,
                 "integrate": self.use_lap, "has_motion": self.has_motion, "pad": self.pad,
                 "reach": self.reach, "fast_ratio": self.fast_ratio,
+                "scatter": self.splat.scatter,
                 "fast_cells": int(self.table.fast.sum()), "cells": len(self.table.fast),
                 "tuning": self.tuning}
 
@@ -118,8 +125,8 @@ class SplatPipeline(Pipeline):
         for ev in evs:
             self.events.append(("clear", ev))
         ev = self.splat(queue, samples, self.device_table, self.inv_far, self.layer_scale,
-                        self.pad, self.reach, self.lap, self.direct, evs)
-        self.events.append(("splat", ev))
+                        self.pad, self.reach, self.lap, self.direct, evs, self.shift)
+        self.events += [("splat", e) for e in self.splat.events]
         if self.use_lap:
             for layer in range(self.layers):
                 ev = self.integrate(queue, self.lap, layer, self.prim, self.ring, [ev])
