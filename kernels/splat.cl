@@ -90,6 +90,18 @@ inline int splat_cell(float s0, float s1, int2 gn, float2 gsmax, float2 ginvb,
     layer_scale, pad, pw, ph, reach, pts, vals, offs, dpts, dvals, doffs, fast, gn, gsmax, \
     ginvb, levels, nlev, lap, direct
 
+inline void splat_add(__global float *dst, const float4 c, const int atomic)
+{
+    if (atomic) {
+        atomic_add_f32(dst + 0, c.x);
+        atomic_add_f32(dst + 1, c.y);
+        atomic_add_f32(dst + 2, c.z);
+        atomic_add_f32(dst + 3, c.w);
+    } else {
+        vstore4(vload4(0, dst) + c, 0, dst);
+    }
+}
+
 /* Draw sample k; atomic: 0 only where no other work-item can write the same pixels. */
 inline void splat_one(const int k, const int atomic, SPLAT_ARGS)
 {
@@ -123,25 +135,20 @@ inline void splat_one(const int k, const int atomic, SPLAT_ARGS)
     __global const float *v = use_fast ? dvals : vals;
     const int first = use_fast ? doffs[cell] : offs[cell];
     const int last = use_fast ? doffs[cell + 1] : offs[cell + 1];
-    __global float *img = (use_fast ? direct : lap) + (size_t)layer * ph * pw * 4;
+    __global float *img = (use_fast ? direct : lap) + (size_t)layer * ph * pw * 4
+                          + ((size_t)cy * pw + cx) * 4;
+    if (mlen == 0.0f) {  /* no rotation: integer offsets (all of NDIM 1, static samples) */
+        for (int j = first; j < last; ++j) {
+            const short2 o = p[j];
+            splat_add(img + ((int)o.y * pw + (int)o.x) * 4, v[j] * wgt, atomic);
+        }
+        return;
+    }
     for (int j = first; j < last; ++j) {
         const float2 o = convert_float2(p[j]);
-#if NDIM == 2
-        const int x = cx + (int)rint(o.x * mdir.x - o.y * mdir.y);
-        const int y = cy + (int)rint(o.x * mdir.y + o.y * mdir.x);
-#else
-        const int x = cx + (int)o.x, y = cy + (int)o.y;
-#endif
-        const float4 c = v[j] * wgt;
-        __global float *dst = img + ((size_t)y * pw + x) * 4;
-        if (atomic) {
-            atomic_add_f32(dst + 0, c.x);
-            atomic_add_f32(dst + 1, c.y);
-            atomic_add_f32(dst + 2, c.z);
-            atomic_add_f32(dst + 3, c.w);
-        } else {
-            vstore4(vload4(0, dst) + c, 0, dst);
-        }
+        const int x = (int)rint(o.x * mdir.x - o.y * mdir.y);
+        const int y = (int)rint(o.x * mdir.y + o.y * mdir.x);
+        splat_add(img + (y * pw + x) * 4, v[j] * wgt, atomic);
     }
 }
 
