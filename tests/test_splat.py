@@ -110,3 +110,23 @@ def test_pinhole_frame_is_the_synthesis_convention(device):
     np.testing.assert_array_equal(buf.position % 1.0, 0.5)
     assert buf.coc_model == render_samples(scene, 24, 16, 1, device=device).coc_model
     assert buf.inspect().max_abs_coc > 0.2  # the camera's defocus comes with it (tiny frame)
+
+
+def test_cli_pinhole_synthesis_with_splat_flags(tmp_path, capsys):
+    import json
+
+    from clrecon.cli import main
+
+    pin = tmp_path / "pin.npz"
+    assert main(["scene", "bokeh", "--pinhole", "--size", "40x32", "-o", str(pin)]) == 0
+    out = tmp_path / "o.exr"
+    capsys.readouterr()
+    assert main(["reconstruct", str(pin), "--method", "splat", "--psf", "stylized",
+                 "--layers", "2", "--pyramid", "f5", "-o", str(out), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["psf"] == "stylized" and rep["psf_source"] == "api"
+    assert rep["layers"] == 2 and rep["pyramid"] == "f5" and rep["spp"] == 1
+    assert main(["reconstruct", str(pin), "--method", "splat", "--dense", "-o", str(out),
+                 "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["mode"] == "dense" and rep["psf"] == "combined"  # bokeh moves
