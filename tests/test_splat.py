@@ -130,3 +130,12 @@ def test_cli_pinhole_synthesis_with_splat_flags(tmp_path, capsys):
                  "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["mode"] == "dense" and rep["psf"] == "combined"  # bokeh moves
+
+
+@pytest.mark.parametrize("knobs", [dict(psf="gauss"), dict(layers=0), dict(pyramid="f9"),
+                                   dict(scatter="locks"), dict(fast_ratio=-1.0)], ids=str)
+def test_bad_knobs_raise(device, rng, knobs):
+    buf = frame(rng, h=4, w=5, s=1, motion=False)
+    name = next(iter(knobs))
+    with pytest.raises(ValueError, match=name):
+        clrecon.reconstruct(buf, "splat", device, **knobs)

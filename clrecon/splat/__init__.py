@@ -28,6 +28,7 @@ from ..tune.specs import local_size_of
 from .composite import Composite
 from .integrate import Integrate
 from .psf import MODELS
+from .reference import PYRAMIDS
 from .splat import Splat
 from .tables import DeviceTable, host_table
 
@@ -45,6 +46,8 @@ class SplatPipeline(Pipeline):
         super().__init__(context, info)
         if psf is not None and psf not in MODELS:
             raise ValueError(f"psf: expected one of {sorted(MODELS)}, got {psf!r}")
+        if pyramid not in PYRAMIDS:
+            raise ValueError(f"pyramid: expected one of {sorted(PYRAMIDS)}, got {pyramid!r}")
         if int(layers) < 1:
             raise ValueError(f"layers: must be >= 1, got {layers}")
         if not fast_ratio >= 0:
