@@ -46,13 +46,13 @@ def test_specialisation_from_the_frame(device, rng):
     assert static["has_motion"] is False
     moving = run(frame(rng, motion=True), "splat", device).method
     assert moving["psf"] == "combined"
-    # static and in focus: every cell it reaches is on the fast track -> no integration
+    # static and in focus: every PSF it reaches is the unit pixel -> the box plan
     buf = SampleBuffer.zeros(8, 9, 4, CocModel.from_focus(8.0, 4.0))
     buf.depth[:] = 4.0
     buf.color[:] = 0.7
     res = run(buf, "splat", device)
-    assert res.method["integrate"] is False and res.method["layers"] == 1
-    assert "integrate" not in res.pass_ms
+    assert res.method["plan"] == "box" and res.method["integrate"] is False
+    assert list(res.pass_ms) == ["box"]
     assert_close(res.image, clrecon.reconstruct(buf, "box", device), rtol=1e-5, what="box")
 
 
@@ -139,3 +139,14 @@ def test_bad_knobs_raise(device, rng, knobs):
     name = next(iter(knobs))
     with pytest.raises(ValueError, match=name):
         clrecon.reconstruct(buf, "splat", device, **knobs)
+
+
+def test_fast_track_only_frame_skips_the_integration(device, rng):
+    """Defocus of at most ~1 px: every cell is drawn densely, no Laplacian is integrated,
+    and the result still matches the chained references."""
+    buf = frame(rng, h=10, w=12, s=4, motion=False, aperture=0.6)
+    res = run(buf, "splat", device)
+    assert res.method["plan"] == "splat" and res.method["integrate"] is False
+    assert "integrate" not in res.pass_ms
+    want = reference_method(device, buf)
+    assert_close(res.image, want, rtol=2e-3, atol=2e-3 * float(want.max()), what="fast only")

@@ -88,13 +88,13 @@ def test_motion_beyond_the_table_is_clamped(device, rng):
 
 @pytest.mark.parametrize("phases", [2, 3, 5])
 def test_owner_tiles_cover_every_sample_once(device, rng, phases):
-    """Many owner tiles per phase (small PSFs on a 64x60 frame): every sample drawn once."""
-    buf = frame(rng, h=60, w=64, s=2, motion=False, aperture=2.0)
+    """Many owner tiles per phase (small PSFs on a 160x48 frame): every sample drawn once."""
+    buf = frame(rng, h=48, w=160, s=1, motion=False, aperture=2.0)
     pipe = make_pipeline("splat", device.context, buf.inspect(), psf="simplelens", layers=2,
                          scatter="tiles")
     pipe.splat.phases = phases
     tile = pipe.splat.tile_size(pipe.reach, pipe.shift, phases)
-    assert -(-64 // tile) >= 2 * phases, "several tiles per phase and row"
+    assert -(-160 // tile) >= 2 * phases, "several tiles per phase and row"
     q = device.queue
     samples = DeviceSamples.upload(q, buf, pipe.fields)
     size = pipe.layers * pipe.shape[0] * pipe.shape[1] * 16

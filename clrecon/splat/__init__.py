@@ -13,14 +13,17 @@ bokeh synthesis SSIM .972 against .961 with ``"f5"``),
 (a cell is drawn densely when its dense PSF has at most this many times its spreadlet count),
 ``scatter`` (``"atomic"`` or ``"tiles"``; default ``"tiles"`` on CPU devices, see
 :mod:`clrecon.splat.splat`).
-When every cell the frame can reach is on the fast track (e.g. a static in-focus frame) the
-Laplacian images and the integration are skipped.
+When every cell the frame can reach is on the fast track the Laplacian images and the
+integration are skipped; when moreover every such PSF is the unit pixel and no sample moves
+from its pixel (a static in-focus frame), the plan is the box filter (``plan`` in
+:meth:`describe`).
 """
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
 
+from ..box import Box
 from ..pipeline import DeviceSamples, Pipeline, register
 from ..samples import FIELDS
 from ..tune.runtime import tuned
@@ -75,13 +78,21 @@ class SplatPipeline(Pipeline):
         self.layer_scale = self.layers / (inv_near - inv_far) if inv_near > inv_far else 0.0
         self.use_lap = not bool(np.all(self.table.fast[reach]))
         self.has_motion = info.has_motion
+        self.tuning: dict[str, str] = {}
+        # static and in focus: every sample lands, whole, in its own pixel -> the box filter
+        self.plan = "box" if self.shift == 0.0 and self._delta_only(reach) else "splat"
+        if self.plan == "box":
+            self.use_lap, self.layers, self.pad = False, 1, 0
+            found = tuned(context, "box", info)
+            self.tuning["box"] = found.source
+            self.box = Box(context, local_size_of(found.config))
+            return
         ph, pw = info.height + 2 * self.pad, info.width + 2 * self.pad
         self.shape = (ph, pw)
         rw = cl.mem_flags.READ_WRITE
         img = self.layers * ph * pw * 16
         self.direct = cl.Buffer(context, rw, img)
         self.device_table = DeviceTable(context, self.table)
-        self.tuning: dict[str, str] = {}
 
         def config(pass_name):
             found = tuned(context, pass_name, info)
@@ -107,8 +118,23 @@ class SplatPipeline(Pipeline):
             self.lap = self.prim = self.direct
             self.integrate = None
 
+    def _delta_only(self, reach: np.ndarray) -> bool:
+        """Whether every reachable cell is drawn densely as the unit pixel at offset 0."""
+        t = self.table
+        for c in np.nonzero(reach)[0]:
+            a, b = t.doffs[c], t.doffs[c + 1]
+            if not t.fast[c] or b - a != 1 or np.any(t.dpts[a] != 0) \
+                    or abs(float(t.dvals[a]) - 1.0) > 1e-6:
+                return False
+        return True
+
     def describe(self) -> dict:
-        return {"method": "splat", "psf": self.psf, "psf_source": self.psf_source,
+        if self.plan == "box":
+            return {"method": "splat", "plan": "box", "psf": self.psf,
+                    "psf_source": self.psf_source, "has_motion": False, "layers": 1,
+                    "integrate": False, "tuning": self.tuning}
+        return {"method": "splat", "plan": "splat", "psf": self.psf,
+                "psf_source": self.psf_source,
                 "mode": "dense" if self.dense else "sparse", "layers": self.layers,
                 "pyramid": self.pyramid if self.use_lap else None,
                 "integrate": self.use_lap, "has_motion": self.has_motion, "pad": self.pad,
@@ -119,6 +145,10 @@ class SplatPipeline(Pipeline):
 
     def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
         w, h = samples.width, samples.height
+        if self.plan == "box":
+            ev = self.box(queue, samples["color"], out, w, h, samples.spp, wait_for)
+            self.events.append(("box", ev))
+            return ev
         size = self.layers * self.shape[0] * self.shape[1] * 16
         evs = [cl.enqueue_fill_buffer(queue, self.direct, np.float32(0), 0, size,
                                       wait_for=wait_for)]

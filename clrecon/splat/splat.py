@@ -16,6 +16,7 @@ from ..pipeline import DeviceSamples
 from .tables import DeviceTable
 
 SCATTERS = ("atomic", "tiles")
+MIN_TILE = 16
 
 
 class Splat:
@@ -42,7 +43,8 @@ class Splat:
         ``R = reach + shift + 1`` px of its pixel, and tiles of one phase, ``k - 1`` tiles
         apart, must not both reach a pixel: ``(k - 1) * tile > 2 R - 1``."""
         r = int(reach) + int(np.ceil(shift)) + 1
-        return (2 * r - 1) // (k - 1) + 1
+        # any larger tile is as safe; below 16 px the launch overhead per tile dominates
+        return max((2 * r - 1) // (k - 1) + 1, MIN_TILE)
 
     def __call__(self, queue, samples: DeviceSamples, table: DeviceTable, inv_far: float,
                  layer_scale: float, pad: int, reach: int, lap: cl.Buffer, direct: cl.Buffer,
@@ -78,7 +80,8 @@ class Splat:
                     continue
                 self.kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(tile),
                                      np.int32(k), np.int32(px), np.int32(py))
-                ev = cl.enqueue_nd_range_kernel(queue, self.kernel, (gx, gy), (1, 1),
+                # tiles of one phase never write the same pixel: any local size is safe
+                ev = cl.enqueue_nd_range_kernel(queue, self.kernel, (gx, gy), None,
                                                 wait_for=evs)
                 self.events.append(ev)
                 evs = [ev]
