@@ -89,8 +89,14 @@ def cmd_scene(args) -> int:
     scene = get_scene(args.name)
     w, h = args.size or scene.default_size
     t0 = time.perf_counter()
-    buf = _with_bar(f"render {args.name}", render_samples, scene, w, h, args.spp, seed=args.seed,
-                    device=args.device)
+    if args.pinhole:  # synthesis input: S = 1, lens 0, time 0.5
+        from .scenes.render import render_pinhole
+
+        args.spp = 1
+        buf = render_pinhole(scene, w, h, device=args.device)
+    else:
+        buf = _with_bar(f"render {args.name}", render_samples, scene, w, h, args.spp,
+                        seed=args.seed, device=args.device)
     dt = time.perf_counter() - t0
     save_samples(args.output, buf)
     info = buf.inspect()
@@ -159,9 +165,32 @@ def cmd_reconstruct(args) -> int:
     return 0
 
 
+def cmd_psf(args) -> int:
+    from .splat.precompute import SparsifyOptions, build_table, table_path
+
+    opts = SparsifyOptions(failures=args.failures, lloyd=args.lloyd, anneal=args.anneal,
+                           spacing=args.spacing)
+    bar = _Bar(f"psf {args.model}", unit="cells")
+    t0 = time.perf_counter()
+    try:
+        table = build_table(args.model, opts, progress=bar)
+    finally:
+        bar.close()
+    dt = time.perf_counter() - t0
+    out = Path(args.output) if args.output else table_path(args.model)
+    table.save(out)
+    size = out.stat().st_size
+    print(f"{args.model}: {table.cells} cells, {len(table.points)} spreadlets, mean sparsity "
+          f"{100 * table.sparsity().mean():.1f}%, mean L1 error {table.errors.mean():.3f}, "
+          f"{size / 1e6:.2f} MB, built in {dt:.0f} s (failures {opts.failures}, lloyd "
+          f"{opts.lloyd}, anneal {opts.anneal}) -> {out}")
+    return 0
+
+
 #: argparse destinations of ``reconstruct`` that are method knobs of the same name
 METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile", "group",
-                "mode", "filter", "stats_stride", "merge_threshold")
+                "mode", "filter", "stats_stride", "merge_threshold",  # layered
+                "psf", "layers", "pyramid", "dense")  # splat
 
 
 def cmd_compare(args) -> int:
@@ -374,6 +403,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--spp", type=int, default=8)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("-o", "--output", required=True, help=".bin/.txt (TLFR), .exr or .npz")
+    sp.add_argument("--pinhole", action="store_true",
+                    help="a pinhole frame (S = 1, lens 0, time 0.5): synthesis input of splat")
     dev(sp)
     sp.set_defaults(fn=cmd_scene)
 
@@ -410,6 +441,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="layered: every n-th sample in the statistics (1: all; 3*spp)")
     sp.add_argument("--merge-threshold", type=float,
                     help="layered: merge layers while the filter changes < this (0.1; <0: off)")
+    sp.add_argument("--psf", choices=("simplelens", "combined", "stylized"),
+                    help="splat: PSF model (default: combined with motion, else simplelens)")
+    sp.add_argument("--layers", type=int, help="splat: global depth layers (default 4)")
+    sp.add_argument("--pyramid", choices=("f5", "f7"), help="splat: integration filter set")
+    sp.add_argument("--dense", action="store_true",
+                    help="splat: splat the dense PSF (the paper's Splatting baseline)")
     sp.add_argument("--json", action="store_true", help="print one JSON object")
     dev(sp)
     sp.set_defaults(fn=cmd_reconstruct)
@@ -499,6 +536,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--compare", default=None, metavar="OLD.json",
                     help="print the change against an earlier --json result")
     sp.set_defaults(fn=cmd_bench)
+
+    sp = sub.add_parser("psf", help="splat: pre-compute a PSF model's spreadlet table")
+    sp.add_argument("action", choices=("build",))
+    sp.add_argument("model", choices=("simplelens", "combined", "stylized"))
+    sp.add_argument("-o", "--output", default=None,
+                    help="default: the package's table (clrecon/splat/data/MODEL.npz)")
+    sp.add_argument("--failures", type=int, default=10_000, help="dart-throwing stop")
+    sp.add_argument("--lloyd", type=int, default=50, help="weighted Lloyd steps")
+    sp.add_argument("--anneal", type=int, default=400, help="simulated-annealing steps")
+    sp.add_argument("--spacing", type=float, default=0.5, help="dart radius scale")
+    sp.set_defaults(fn=cmd_psf)
     return p
 
 

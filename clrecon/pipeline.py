@@ -138,11 +138,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, **knobs) ->
 
 
 def _load_methods() -> None:
-    from . import (  # noqa: F401  (they register themselves)
-        box,
-        layered,  # noqa: F401
-        sweep,
-    )
+    from . import box, layered, splat, sweep  # noqa: F401  (they register themselves)
 
 
 @dataclass

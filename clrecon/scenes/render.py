@@ -114,3 +114,28 @@ def render_reference(scene: Scene, width: int, height: int, spp: int | None = No
         if progress is not None:
             progress(first + count, spp)
     return (acc / spp).astype(np.float32)
+
+
+def render_pinhole(scene: Scene, width: int, height: int,
+                   device: DeviceSpec | Device = None) -> SampleBuffer:
+    """The pinhole frame of ``scene`` (synthesis input): S = 1, every sample at its pixel
+    centre with lens (0, 0) and time 0.5; depth, motion and the CoC model as
+    :func:`render_samples` records them."""
+    _check_size(width, height, 1)
+    dev = _get_device(device)
+    ctx, q = dev.context, dev.queue
+    cam, objs, camera, light, bg = _common_args(scene, width, height, ctx)
+    hws = (height, width, 1)
+    host = {"color": np.empty(hws + (3,), np.float32), "position": np.empty(hws + (2,), np.float32),
+            "depth": np.empty(hws, np.float32), "lens": np.empty(hws + (2,), np.float32),
+            "time": np.empty(hws, np.float32), "motion": np.empty(hws + (2,), np.float32)}
+    dbufs = {k: cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, a.nbytes) for k, a in host.items()}
+    kernel = get_kernel(ctx, "raytrace_pinhole", "raytrace_pinhole")
+    kernel.set_args(*objs, np.int32(width), np.int32(height), np.int32(0), *camera, light, bg,
+                    *(dbufs[k] for k in host))
+    gsize, lsize = _local_size(ctx, width, height, 1).for_range(width, height)
+    cl.enqueue_nd_range_kernel(q, kernel, gsize, lsize)
+    for k, a in host.items():
+        cl.enqueue_copy(q, a, dbufs[k])
+    q.finish()
+    return SampleBuffer(**host, coc_model=cam.coc_model)

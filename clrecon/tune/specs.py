@@ -359,5 +359,73 @@ SPECS: dict[str, PassSpec] = {s.name: s for s in (
              rtol=1e-5, atol=1e-6),
 )}
 
+
+# -- method splat ----------------------------------------------------------------------------
+
+def splat_candidates() -> list:
+    return [{"wg": g} for g in (32, 64, 128, 256)] + [None]
+
+
+def _splat_frame_pipeline(dev, w, h, spp):
+    from ..pipeline import make_pipeline
+
+    buf = synthetic_frame(w, h, spp)
+    s = DeviceSamples.upload(dev.queue, buf)
+    return make_pipeline("splat", dev.context, buf.inspect(), psf="combined", layers=2), s
+
+
+def _splat_runner(dev, w, h, spp):
+    from ..splat.splat import Splat
+
+    pipe, s = _splat_frame_pipeline(dev, w, h, spp)
+    n = pipe.layers * pipe.shape[0] * pipe.shape[1] * 4
+
+    def launch(p, q, out):
+        # accumulating pass: clear first (fast-track cells go to pipe.direct, not checked)
+        ev = cl.enqueue_fill_buffer(q, out, np.float32(0), 0, n * 4)
+        return p(q, s, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad, pipe.reach,
+                 out, pipe.direct, [ev])
+
+    return PassRunner(dev, lambda c: Splat(dev.context, spp, 2, True, pipe.layers,
+                                           None if c is None else int(c["wg"])),
+                      launch, (n,), lambda c: None if c is None else int(c["wg"]))
+
+
+def _integrate_runner(dev, w, h, spp):
+    from ..splat.integrate import Integrate
+
+    pipe, s = _splat_frame_pipeline(dev, w, h, spp)
+    q = dev.queue
+    size = pipe.layers * pipe.shape[0] * pipe.shape[1] * 16
+    evs = [cl.enqueue_fill_buffer(q, b, np.float32(0), 0, size) for b in (pipe.lap, pipe.direct)]
+    pipe.splat(q, s, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad, pipe.reach,
+               pipe.lap, pipe.direct, evs).wait()
+    ring = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, pipe.layers * 16)
+    return PassRunner(dev, lambda c: Integrate(dev.context, *pipe.shape, "f5", local_size_of(c)),
+                      lambda p, q, out: p(q, pipe.lap, 0, out, ring),
+                      (*pipe.shape, 4), _wg)  # layer 0 only
+
+
+def _splat_composite_runner(dev, w, h, spp):
+    from ..splat.composite import Composite
+
+    pipe, s = _splat_frame_pipeline(dev, w, h, spp)
+    out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * 12)
+    pipe(dev.queue, s, out).wait()
+    return PassRunner(dev, lambda c: Composite(dev.context, pipe.layers, True, local_size_of(c)),
+                      lambda p, q, o: p(q, pipe.prim, pipe.direct, pipe.ring, w, h, pipe.pad, o),
+                      (h, w, 3), _wg)
+
+
+SPECS.update({s.name: s for s in (
+    # float atomics add in a different order per configuration: relative tolerance
+    PassSpec("splat", "splat", {"wg": 64}, splat_candidates, _splat_runner, rtol=1e-3,
+             atol=1e-6),
+    PassSpec("integrate", "integrate", DEFAULT_LOCAL, local_candidates, _integrate_runner,
+             rtol=1e-4, atol=1e-6),
+    PassSpec("splat_composite", "splat_composite", DEFAULT_LOCAL, local_candidates,
+             _splat_composite_runner),
+)})
+
 #: the configuration every pass uses when no tuning entry applies (lookup level "default")
 DEFAULTS: dict[str, dict | None] = {name: spec.default for name, spec in SPECS.items()}

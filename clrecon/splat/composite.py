@@ -1,0 +1,28 @@
+"""Pass ``splat_composite``: back-to-front composition of the layers
+(``kernels/splat_composite.cl``; ``layered`` has its own ``composite``)."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ..device import get_kernel
+from ..pipeline import LocalSize
+
+
+class Composite:
+    """``kernels/splat_composite.cl`` / ``splat_composite``."""
+
+    name = "splat_composite"
+
+    def __init__(self, context: cl.Context, nlayers: int, use_lap: bool,
+                 local: LocalSize | None = None):
+        self.local = local or LocalSize(16, 4)
+        self.kernel = get_kernel(context, "splat_composite", "splat_composite",
+                                 {"NLAYERS": nlayers, "USE_LAP": int(use_lap)})
+
+    def __call__(self, queue, b: cl.Buffer, direct: cl.Buffer, ring: cl.Buffer, width: int,
+                 height: int, pad: int, out: cl.Buffer, wait_for=None) -> cl.Event:
+        self.kernel.set_args(b, direct, ring, np.int32(width), np.int32(height), np.int32(pad),
+                             np.int32(width + 2 * pad), np.int32(height + 2 * pad), out)
+        g, loc = self.local.for_range(width, height)
+        return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)

@@ -1,0 +1,75 @@
+"""Pass ``integrate``: convolution-pyramid integration of every layer's Laplacian image and
+its ring anchor (``kernels/integrate.cl``)."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ..device import get_kernel
+from ..pipeline import LocalSize
+from .reference import PYRAMIDS, pyramid_shapes
+
+RING_WG = 256
+
+
+class Integrate:
+    """``kernels/integrate.cl``: ``integrate_down``, ``integrate_up``, ``integrate_ring``.
+
+    Allocates the pyramid levels for one padded image shape; layers reuse them in turn.
+    """
+
+    name = "integrate"
+
+    def __init__(self, context: cl.Context, height: int, width: int, pyramid: str = "f5",
+                 local: LocalSize | None = None):
+        if pyramid not in PYRAMIDS:
+            raise ValueError(f"pyramid: expected one of {sorted(PYRAMIDS)}, got {pyramid!r}")
+        self.pyramid = pyramid
+        self.local = local or LocalSize(16, 4)
+        defines = {"PYR": 5 if pyramid == "f5" else 7, "WG_RING": RING_WG}
+        self.down = get_kernel(context, "integrate", "integrate_down", defines)
+        self.up = get_kernel(context, "integrate", "integrate_up", defines)
+        self.ring = get_kernel(context, "integrate", "integrate_ring", defines)
+        self.kernel = self.up  # the 2D kernels share the local size; the tuner queries one
+        pad = len(PYRAMIDS[pyramid][0])
+        self.shapes = pyramid_shapes(height, width, pad)
+        rw = cl.mem_flags.READ_WRITE
+        self.a = [None] + [cl.Buffer(context, rw, h * w * 16) for h, w in self.shapes[1:]]
+        self.b = [None] + [cl.Buffer(context, rw, h * w * 16) for h, w in self.shapes[1:]]
+
+    def _launch(self, queue, kernel, w, h, wait_for):
+        g, loc = self.local.for_range(w, h)
+        return cl.enqueue_nd_range_kernel(queue, kernel, g, loc, wait_for=wait_for)
+
+    def __call__(self, queue, lap: cl.Buffer, layer: int, out: cl.Buffer, ring: cl.Buffer,
+                 wait_for=None) -> cl.Event:
+        """Integrate layer ``layer`` of ``lap`` into the same layer of ``out`` (the pyramid's
+        output ``b0``; the image is ``ring[layer] - b0``) and write ``ring[layer]``.
+        ``self.events`` then holds every kernel's event (for per-pass timing)."""
+        self.events = []
+        h0, w0 = self.shapes[0]
+        off = np.int32(layer * h0 * w0)
+        src, soff, ev = lap, off, wait_for
+        for i in range(1, len(self.shapes)):
+            (sh, sw), (dh, dw) = self.shapes[i - 1], self.shapes[i]
+            self.down.set_args(src, soff, np.int32(sw), np.int32(sh), self.a[i], np.int32(dw),
+                               np.int32(dh))
+            ev = [self._launch(queue, self.down, dw, dh, ev)]
+            self.events += ev
+            src, soff = self.a[i], np.int32(0)
+        top = len(self.shapes) - 1
+        for i in range(top, -1, -1):
+            fh, fw = self.shapes[i]
+            coarse, cw, ch = (self.b[i + 1], *self.shapes[i + 1][::-1]) if i < top else \
+                (self.a[top], 0, 0)
+            fine, foff = (lap, off) if i == 0 else (self.a[i], np.int32(0))
+            dst, ooff = (out, off) if i == 0 else (self.b[i], np.int32(0))
+            self.up.set_args(coarse, np.int32(cw), np.int32(ch), fine, foff, np.int32(fw),
+                             np.int32(fh), dst, ooff)
+            ev = [self._launch(queue, self.up, fw, fh, ev)]
+            self.events += ev
+        self.ring.set_args(out, off, np.int32(w0), np.int32(h0), ring, np.int32(layer))
+        last = cl.enqueue_nd_range_kernel(queue, self.ring, (RING_WG,), (RING_WG,),
+                                          wait_for=ev)
+        self.events.append(last)
+        return last

@@ -1,0 +1,152 @@
+"""Method ``splat`` end to end: the pipeline against the NumPy references chained, the
+specialisations it picks from the frame, and the robustness extremes."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import assert_close
+from splat_frames import frame
+
+import clrecon
+from clrecon.camera import CocModel
+from clrecon.pipeline import make_pipeline, run
+from clrecon.samples import SampleBuffer
+from clrecon.splat import reference as ref
+
+
+def reference_method(device, buf, **knobs):
+    pipe = make_pipeline("splat", device.context, buf.inspect(), **knobs)
+    t = pipe.table
+    inv_near = pipe.inv_far + pipe.layers / pipe.layer_scale if pipe.layer_scale else pipe.inv_far
+    lap, direct = ref.splat(buf, t.as_tuple(), t.model.cell_of, pipe.layers,
+                            (pipe.inv_far, inv_near), pipe.pad, pipe.reach, t.fast.astype(bool),
+                            rotate=len(t.model.n) == 2, smax=t.model.smax)
+    prim = np.zeros_like(lap)
+    if pipe.use_lap:
+        for layer in range(pipe.layers):
+            for c in range(4):
+                prim[layer, :, :, c] = ref.integrate(lap[layer, :, :, c], pipe.pyramid)
+    return ref.composite(prim, direct, pipe.pad, buf.height, buf.width)
+
+
+@pytest.mark.parametrize("knobs,motion", [
+    (dict(), False), (dict(layers=2, pyramid="f7"), False),
+    (dict(psf="combined", layers=2), True), (dict(dense=True, layers=2), False),
+], ids=["auto-static", "f7", "combined", "dense"])
+def test_method_matches_chained_references(device, rng, knobs, motion):
+    buf = frame(rng, h=12, w=10, s=2, motion=motion)
+    got = clrecon.reconstruct(buf, "splat", device, **knobs)
+    want = reference_method(device, buf, **knobs)
+    assert_close(got, want, rtol=2e-3, atol=2e-3 * float(want.max()), what=f"splat {knobs}")
+
+
+def test_specialisation_from_the_frame(device, rng):
+    static = run(frame(rng, motion=False), "splat", device).method
+    assert static["psf"] == "simplelens" and static["psf_source"] == "inspect"
+    assert static["has_motion"] is False
+    moving = run(frame(rng, motion=True), "splat", device).method
+    assert moving["psf"] == "combined"
+    # static and in focus: every PSF it reaches is the unit pixel -> the box plan
+    buf = SampleBuffer.zeros(8, 9, 4, CocModel.from_focus(8.0, 4.0))
+    buf.depth[:] = 4.0
+    buf.color[:] = 0.7
+    res = run(buf, "splat", device)
+    assert res.method["plan"] == "box" and res.method["integrate"] is False
+    assert list(res.pass_ms) == ["box"]
+    assert_close(res.image, clrecon.reconstruct(buf, "box", device), rtol=1e-5, what="box")
+
+
+def _flat(h, w, s, depth, motion=(0.0, 0.0), aperture=8.0, colour=(0.4, 1.0, 3e4), seed=0):
+    rng = np.random.default_rng(seed)
+    buf = frame(rng, h, w, s, motion=False, aperture=aperture, misses=False)
+    buf.depth[:] = depth
+    buf.motion[:] = motion
+    buf.color[:] = colour
+    return buf.validate()
+
+
+EXTREMES = {
+    "coc0": dict(depth=4.0),
+    "coc150": dict(depth=0.2, aperture=8.0),  # |coc| = 8 * (4 / 0.2 - 1) = 152 px
+    "subpixel-motion": dict(depth=6.0, motion=(0.3, -0.2)),
+    "motion400": dict(depth=6.0, motion=(310.0, 250.0)),
+    "misses": dict(depth=np.inf),
+    "near": dict(depth=1e-3, aperture=0.01),
+}
+
+
+@pytest.mark.parametrize("case", list(EXTREMES))
+@pytest.mark.parametrize("shape", [(1, 1, 1), (1, 9, 4), (7, 5, 3)], ids=str)
+def test_flat_field_extremes(device, case, shape):
+    buf = _flat(*shape, **EXTREMES[case])
+    img = clrecon.reconstruct(buf, "splat", device)
+    assert np.isfinite(img).all()
+    want = np.array([0.4, 1.0, 3e4])
+    assert_close(img.reshape(-1, 3).mean(0), want, rtol=0.01, what=f"flat {case}")
+
+
+def test_hdr_next_to_dark_and_64spp(device, rng):
+    buf = frame(rng, h=9, w=11, s=64, motion=True)
+    buf.color[:, :5] = 1e-3
+    buf.color[:, 5:] = 1e6
+    img = clrecon.reconstruct(buf, "splat", device)
+    assert np.isfinite(img).all() and img.min() >= 0
+    buf = frame(rng, h=6, w=6, s=1)
+    buf.color[:] = 2.0
+    buf.depth[:] = 9.0  # a frame of identical samples (one depth, one colour)
+    buf.motion[:] = (3.0, 1.0)
+    img = clrecon.reconstruct(buf, "splat", device, psf="combined")
+    assert_close(img.mean(), 2.0, rtol=0.01, what="identical samples")
+
+
+def test_pinhole_frame_is_the_synthesis_convention(device):
+    from clrecon.scenes import get_scene
+    from clrecon.scenes.render import render_pinhole, render_samples
+
+    scene = get_scene("bokeh")
+    buf = render_pinhole(scene, 24, 16, device=device).validate()
+    assert buf.shape == (16, 24, 1)
+    assert np.all(buf.lens == 0) and np.all(buf.time == 0.5)
+    np.testing.assert_array_equal(buf.position % 1.0, 0.5)
+    assert buf.coc_model == render_samples(scene, 24, 16, 1, device=device).coc_model
+    assert buf.inspect().max_abs_coc > 0.2  # the camera's defocus comes with it (tiny frame)
+
+
+def test_cli_pinhole_synthesis_with_splat_flags(tmp_path, capsys):
+    import json
+
+    from clrecon.cli import main
+
+    pin = tmp_path / "pin.npz"
+    assert main(["scene", "bokeh", "--pinhole", "--size", "40x32", "-o", str(pin)]) == 0
+    out = tmp_path / "o.exr"
+    capsys.readouterr()
+    assert main(["reconstruct", str(pin), "--method", "splat", "--psf", "stylized",
+                 "--layers", "2", "--pyramid", "f5", "-o", str(out), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["psf"] == "stylized" and rep["psf_source"] == "api"
+    assert rep["layers"] == 2 and rep["pyramid"] == "f5" and rep["spp"] == 1
+    assert main(["reconstruct", str(pin), "--method", "splat", "--dense", "-o", str(out),
+                 "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["mode"] == "dense" and rep["psf"] == "combined"  # bokeh moves
+
+
+@pytest.mark.parametrize("knobs", [dict(psf="gauss"), dict(layers=0), dict(pyramid="f9"),
+                                   dict(scatter="locks"), dict(fast_ratio=-1.0)], ids=str)
+def test_bad_knobs_raise(device, rng, knobs):
+    buf = frame(rng, h=4, w=5, s=1, motion=False)
+    name = next(iter(knobs))
+    with pytest.raises(ValueError, match=name):
+        clrecon.reconstruct(buf, "splat", device, **knobs)
+
+
+def test_fast_track_only_frame_skips_the_integration(device, rng):
+    """Defocus of at most ~1 px: every cell is drawn densely, no Laplacian is integrated,
+    and the result still matches the chained references."""
+    buf = frame(rng, h=10, w=12, s=4, motion=False, aperture=0.6)
+    res = run(buf, "splat", device)
+    assert res.method["plan"] == "splat" and res.method["integrate"] is False
+    assert "integrate" not in res.pass_ms
+    want = reference_method(device, buf)
+    assert_close(res.image, want, rtol=2e-3, atol=2e-3 * float(want.max()), what="fast only")
