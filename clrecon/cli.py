@@ -463,7 +463,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--spp", type=int, default=8)
     sp.add_argument("--ref-spp", type=int, default=None, help="default: the scene's")
     sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument("--methods", default="box,oidn,sweep",
+    sp.add_argument("--methods", default="box,oidn,sweep,layered,splat",
                     help="comma-separated methods to run (oidn: box + Open Image Denoise)")
     sp.add_argument("-o", "--output", default="out")
     dev(sp)

@@ -55,15 +55,13 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
         ("layered mip", {"filter": "mip"}),
         ("layered lrdm", {"mode": "lrdm"}),
         ("layered full stats", {"stats_stride": 1}),
-        ("layered no merging", {"merge_threshold": 0.0}),
-        ("layered merge 0.3", {"merge_threshold": 0.3}),
+        ("layered no merging", {"merge_threshold": -1.0}),
         ("layered tile 16", {"tile": 16}),
-        ("layered tile 64", {"tile": 64}),
     ),
     "splat": (
         ("splat", {}),
-        ("splat f7", {"pyramid": "f7"}),
-        ("splat 4 layers", {"layers": 4}),
+        ("splat f5", {"pyramid": "f5"}),
+        ("splat 2 layers", {"layers": 2}),
         ("splat dense", {"dense": True}),
     ),
 }
