@@ -91,3 +91,16 @@ def test_lookup_levels_for_this_device(device):
 def test_unknown_pass_is_an_error(device):
     with pytest.raises(ValueError, match="unknown"):
         tune_device(device, ["nope"], size=(8, 8), spp=1)
+
+
+def test_multi_kernel_passes_are_timed_whole(device):
+    """integrate enqueues one kernel per pyramid level: the runner's time is their sum, not
+    the last kernel's (which alone took ~0.02 ms and would decide the tuning)."""
+    runner = SPECS["integrate"].runner(device, 96, 64, 4)
+    handle = runner.build(None)
+    _, ms = runner.run(handle)
+    events = handle.events
+    assert len(events) > 2
+    parts = [(e.profile.end - e.profile.start) * 1e-6 for e in events]
+    assert ms == pytest.approx(sum(parts), rel=1e-6)
+    assert ms > parts[-1]
