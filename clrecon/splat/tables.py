@@ -58,9 +58,16 @@ def _radius(pts: np.ndarray, offs: np.ndarray) -> np.ndarray:
     return np.array([r[a:b].max(initial=0.0) for a, b in zip(offs[:-1], offs[1:])])
 
 
-def host_table(name: str, dense: bool, fast_ratio: float) -> HostTable:
-    """Sparse spreadlets with the fast track (cells whose dense PSF has at most ``fast_ratio``
-    times as many pixels as spreadlets are drawn densely), or everything dense."""
+def host_table(name: str, dense: bool, fast_ratio: float,
+               max_error: float = float("inf")) -> HostTable:
+    """Sparse spreadlets with the fast track, or everything dense.
+
+    A cell goes on the fast track (drawn densely) when its dense PSF has at most
+    ``fast_ratio`` times as many pixels as spreadlets, or when its spreadlets' L1 error
+    (``PsfTable.errors``, measured at build time against the unit-energy PSF) exceeds
+    ``max_error``: every sample of a frame that lands in such a cell repeats the same error
+    pattern, so over a large uniform region (a defocused background) the errors add up to
+    visible low-frequency blotches instead of averaging out."""
     model = get_model(name)
     if dense:
         dp, dv, do = load_dense(name)
@@ -70,7 +77,7 @@ def host_table(name: str, dense: bool, fast_ratio: float) -> HostTable:
                          _radius(dp, do))
     t = load_table(name)
     nd, ns = np.diff(t.dense_offsets), np.diff(t.offsets)
-    fast = t.has_dense & ((nd <= fast_ratio * ns) | (ns == 0))
+    fast = t.has_dense & ((nd <= fast_ratio * ns) | (ns == 0) | (t.errors > max_error))
     rad = np.where(fast, _radius(t.dense_points, t.dense_offsets), _radius(t.points, t.offsets))
     return HostTable(model, t.points, t.values, t.offsets, t.dense_points, t.dense_values,
                      t.dense_offsets, fast.astype(np.uint8), rad)
