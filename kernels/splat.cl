@@ -6,13 +6,16 @@
  * cost of an add) draw, for sample k (index (y * W + x) * SPP + i of the SoA fields)
  *   coc    = c0 / depth + c1 (c1 for misses, depth >= 1e30)
  *   centre = position - coc * lens - (time - 0.5) * motion       (re-centring, section 6.2;
- *            coc and motion scaled down to the table's range where they exceed it, so the
- *            sample stays inside the clamped PSF; with NDIM == 1 the PSF has no motion and
- *            the motion term is not re-centred)
+ *            coc scaled down to the table's range where it exceeds it, so the sample stays
+ *            inside the clamped PSF; with NDIM == 1 the PSF has no motion and the motion term
+ *            is not re-centred)
+ *   nsub   = ceil(|motion| / smax1) where |motion| exceeds the table's range (NDIM 2), else 1:
+ *            the segment is drawn as nsub PSFs of length |motion| / nsub centred at
+ *            centre + ((j + 0.5) / nsub - 0.5) * motion, each with weight / nsub
  *   layer  = floor((1/depth - inv_far) * layer_scale), clamped to [0, NLAYERS)  (0 = farthest;
  *            uniform in 1/depth: constant parallax; misses at 1/depth = 0)
- *   cell   = the nested-grid cell of (|coc|) or (|coc|, |motion|) (O(1), see psf.py)
- *   weight = (rgb, 1) / SPP
+ *   cell   = the nested-grid cell of (|coc|) or (|coc|, |motion| / nsub) (O(1), see psf.py)
+ *   weight = (rgb, 1) / (SPP nsub)
  * and adds weight * value at pixel floor(centre) + offset + pad of every point of the cell:
  *   fast[cell] != 0: the dense PSF (dpts/dvals/doffs) into `direct` (the fast track);
  *   otherwise the spreadlets (pts/vals/offs) into `lap`, the layer's Laplacian image.
@@ -108,47 +111,55 @@ inline void splat_one(const int k, const int atomic, SPLAT_ARGS)
     const float z = depth[k];
     const int miss = z >= MISS_DEPTH;
     const float coc = miss ? c1 : c0 / z + c1;
-    /* beyond the table's range the PSF is clamped: re-centre by the clamped CoC (motion) so
-     * that the sample stays inside the PSF that is drawn */
+    /* beyond the table's CoC range the PSF is clamped: re-centre by the clamped CoC so that
+     * the sample stays inside the PSF that is drawn */
     const float cscale = fabs(coc) > gsmax.x ? gsmax.x / fabs(coc) : 1.0f;
     float2 centre = vload2(k, position) - (coc * cscale) * vload2(k, lens);
     float mlen = 0.0f;
     float2 mdir = (float2)(1.0f, 0.0f);
+    float2 mot = (float2)(0.0f, 0.0f);
+    int nsub = 1;
 #if HAS_MOTION && NDIM == 2
-    const float2 mot = vload2(k, motion);
+    mot = vload2(k, motion);
     mlen = length(mot);
-    const float mscale = mlen > gsmax.y ? gsmax.y / mlen : 1.0f;
-    centre -= ((time[k] - 0.5f) * mscale) * mot;
+    /* a segment longer than the table's range is drawn as nsub equal sub-segments, each
+     * within range: (disc swept over L) = sum over j of (disc swept over L / nsub), shifted */
+    if (mlen > gsmax.y)
+        nsub = (int)ceil(mlen / gsmax.y);
+    centre -= (time[k] - 0.5f) * mot;
     if (mlen > 0.0f)
         mdir = mot / mlen;
 #endif
     const float inv = miss ? 0.0f : 1.0f / z;
     const int layer = clamp((int)floor((inv - inv_far) * layer_scale), 0, NLAYERS - 1);
-    const int cell = splat_cell(fabs(coc), mlen, gn, gsmax, ginvb, levels, nlev);
-    const float4 wgt = (float4)(vload3(k, color), 1.0f) * (1.0f / (float)SPP);
-    const float fx = floor(centre.x) + pad, fy = floor(centre.y) + pad;
-    if (!(fx >= reach && fy >= reach && fx < pw - reach && fy < ph - reach))
-        return;
-    const int cx = (int)fx, cy = (int)fy;
+    const int cell = splat_cell(fabs(coc), mlen / (float)nsub, gn, gsmax, ginvb, levels, nlev);
+    const float4 wgt = (float4)(vload3(k, color), 1.0f) * (1.0f / (float)(SPP * nsub));
     const int use_fast = fast[cell];
     __global const short2 *p = use_fast ? dpts : pts;
     __global const float *v = use_fast ? dvals : vals;
     const int first = use_fast ? doffs[cell] : offs[cell];
     const int last = use_fast ? doffs[cell + 1] : offs[cell + 1];
-    __global float *img = (use_fast ? direct : lap) + (size_t)layer * ph * pw * 4
-                          + ((size_t)cy * pw + cx) * 4;
-    if (mlen == 0.0f) {  /* no rotation: integer offsets (all of NDIM 1, static samples) */
-        for (int j = first; j < last; ++j) {
-            const short2 o = p[j];
-            splat_add(img + ((int)o.y * pw + (int)o.x) * 4, v[j] * wgt, atomic);
+    for (int sub = 0; sub < nsub; ++sub) {
+        const float2 cs = centre + (((float)sub + 0.5f) / (float)nsub - 0.5f) * mot;
+        const float fx = floor(cs.x) + pad, fy = floor(cs.y) + pad;
+        if (!(fx >= reach && fy >= reach && fx < pw - reach && fy < ph - reach))
+            continue;
+        const int cx = (int)fx, cy = (int)fy;
+        __global float *img = (use_fast ? direct : lap) + (size_t)layer * ph * pw * 4
+                              + ((size_t)cy * pw + cx) * 4;
+        if (mlen == 0.0f) {  /* no rotation: integer offsets (all of NDIM 1, static samples) */
+            for (int j = first; j < last; ++j) {
+                const short2 o = p[j];
+                splat_add(img + ((int)o.y * pw + (int)o.x) * 4, v[j] * wgt, atomic);
+            }
+            continue;
         }
-        return;
-    }
-    for (int j = first; j < last; ++j) {
-        const float2 o = convert_float2(p[j]);
-        const int x = (int)rint(o.x * mdir.x - o.y * mdir.y);
-        const int y = (int)rint(o.x * mdir.y + o.y * mdir.x);
-        splat_add(img + (y * pw + x) * 4, v[j] * wgt, atomic);
+        for (int j = first; j < last; ++j) {
+            const float2 o = convert_float2(p[j]);
+            const int x = (int)rint(o.x * mdir.x - o.y * mdir.y);
+            const int y = (int)rint(o.x * mdir.y + o.y * mdir.x);
+            splat_add(img + (y * pw + x) * 4, v[j] * wgt, atomic);
+        }
     }
 }
 

@@ -190,15 +190,48 @@ def test_cells_with_large_spreadlet_error_are_drawn_densely(device, rng):
     assert err["default"] < 0.2 * err["never"], err
 
 
-def test_blur_beyond_the_table_is_reported(device, rng, caplog):
-    """Combined covers motion <= 192 px; a 280 px streak (fast_motion) is drawn with the
-    largest PSF: describe() and a warning say so, and a frame within range says nothing."""
+def test_blur_beyond_the_table(device, rng, caplog):
+    """Combined covers motion <= 192 px: a 280 px streak is drawn as two 140 px sub-PSFs
+    (describe() says so); a CoC beyond SimpleLens's 128 px is clamped, with a warning."""
     buf = frame(rng, h=8, w=9, s=2, motion=False, aperture=2.0)
     buf.motion[..., 0] = 280.0
-    with caplog.at_level("WARNING", logger="clrecon.splat"):
-        pipe = make_pipeline("splat", device.context, buf.inspect(), psf="combined")
-    assert pipe.describe()["clamped"] == {"motion": {"frame_px": 280.0, "table_max_px": 192.0}}
-    assert "covers less than this frame needs" in caplog.text
+    d = make_pipeline("splat", device.context, buf.inspect(), psf="combined").describe()
+    assert d["motion_split"] == 2 and d["clamped"] == {}
     buf.motion[..., 0] = 100.0
-    assert make_pipeline("splat", device.context, buf.inspect(),
-                         psf="combined").describe()["clamped"] == {}
+    d = make_pipeline("splat", device.context, buf.inspect(), psf="combined").describe()
+    assert d["motion_split"] == 1
+    big = frame(rng, h=8, w=9, s=2, motion=False, aperture=300.0)
+    with caplog.at_level("WARNING", logger="clrecon.splat"):
+        d = make_pipeline("splat", device.context, big.inspect(), psf="simplelens").describe()
+    assert d["clamped"]["coc"]["table_max_px"] == 128.0
+    assert "the largest PSF stands in" in caplog.text
+
+
+def test_long_motion_is_split_into_sub_segments(device, rng):
+    """A streak longer than the table's range equals, per sample, the sum of its halves:
+    a 280 px motion splatted whole (two 140 px sub-PSFs) matches the frame whose every sample
+    is replaced by two samples of 140 px motion centred on the halves; the clamped single
+    192 px PSF (what the table alone gives) does not."""
+    h, w = 3, 420
+    buf = SampleBuffer.zeros(h, w, 1, CocModel(c0=0.0, c1=1.5))
+    buf.position[:] = buf.position - 0.5 + rng.uniform(0.0, 0.999, buf.position.shape)
+    buf.depth[:] = 5.0
+    buf.time[:] = 0.5
+    buf.motion[..., 0] = 280.0
+    buf.color[:] = 0.0
+    buf.color[:, 180:240] = rng.uniform(0.2, 1.0, (h, 60, 1, 3))  # a bar: streak ends show
+    whole = clrecon.reconstruct(buf, "splat", device, psf="combined", layers=1, dense=True)
+    halves = SampleBuffer.zeros(h, w, 2, buf.coc_model)
+    for i, shift in enumerate((-70.0, 70.0)):  # sub-centres at -/+ L/4, each L/2 long
+        halves.position[:, :, i] = buf.position[:, :, 0]
+        halves.time[:, :, i] = 0.5 - shift / 140.0  # re-centring moves the centre by shift
+        halves.motion[:, :, i, 0] = 140.0
+        halves.depth[:, :, i] = 5.0
+        halves.color[:, :, i] = buf.color[:, :, 0]
+    split = clrecon.reconstruct(halves.validate(), "splat", device, psf="combined", layers=1,
+                                dense=True)
+    scale = float(split.max())
+    assert np.abs(whole - split).max() < 0.02 * scale
+    # the bar's streak spans 60 + 280 px; one clamped 192 px PSF would light 60 + 192 only
+    lit = int(((whole[1].sum(-1)) > 1e-3 * scale).sum())
+    assert lit >= 60 + 280 - 4, lit

@@ -78,18 +78,22 @@ class SplatPipeline(Pipeline):
         # and the kernel skips them.
         self.reach = int(np.ceil(self.table.radius[reach].max(initial=0.0))) + 1
         smax = self.table.model.smax
-        # the table's parameter range: larger blur is drawn with the largest PSF (clamped),
-        # which is too small; describe() and a warning say so
-        beyond = {"coc": (info.max_abs_coc, smax[0])}
-        if ndim == 2:
-            beyond["motion"] = (info.max_abs_motion, smax[1])
-        self.clamped = {k: {"frame_px": round(v, 2), "table_max_px": m}
-                        for k, (v, m) in beyond.items() if v > m}
-        if self.clamped:
-            log.warning("splat: the %s table covers less than this frame needs (%s): the "
-                        "largest PSF stands in for larger blur", self.psf, self.clamped)
-        motion = min(info.max_abs_motion, smax[-1]) if ndim == 2 else 0.0
-        self.shift = min(info.max_abs_coc, smax[0]) + 0.5 * motion
+        # the table's CoC range: a larger CoC is drawn with the largest disc (clamped), which
+        # is too small; describe() and a warning say so. Motion beyond the range is drawn as
+        # ceil(|motion| / smax) sub-segments (exact up to the sub-PSFs' rounding).
+        self.clamped = {}
+        if info.max_abs_coc > smax[0]:
+            self.clamped["coc"] = {"frame_px": round(info.max_abs_coc, 2),
+                                   "table_max_px": smax[0]}
+            log.warning("splat: the %s table covers CoC <= %g px, this frame reaches %.1f px: "
+                        "the largest PSF stands in for larger blur", self.psf, smax[0],
+                        info.max_abs_coc)
+        motion = info.max_abs_motion if ndim == 2 else 0.0
+        self.motion_split = int(np.ceil(motion / smax[-1])) if motion > smax[-1] else 1
+        # how far a (sub-)PSF's centre lies from its sample: |coc| + |motion| / 2, and up to
+        # |coc| + |motion| for the outer sub-segments of a split one
+        self.shift = min(info.max_abs_coc, smax[0]) + (
+            motion if self.motion_split > 1 else 0.5 * motion)
         self.pad = self.reach + int(np.ceil(min(self.shift, float(self.reach)))) + 2
         hits = info.miss_fraction < 1.0
         inv_near = 1.0 / info.min_depth if hits else 0.0
@@ -161,7 +165,7 @@ class SplatPipeline(Pipeline):
                 "integrate": self.use_lap, "has_motion": self.has_motion, "pad": self.pad,
                 "reach": self.reach, "fast_ratio": self.fast_ratio,
                 "max_error": self.max_error if np.isfinite(self.max_error) else None,
-                "clamped": self.clamped,
+                "clamped": self.clamped, "motion_split": self.motion_split,
                 "scatter": self.splat.scatter,
                 "fast_cells": int(self.table.fast.sum()), "cells": len(self.table.fast),
                 "tuning": self.tuning}

@@ -115,21 +115,23 @@ def splat(buf, table, grid, nlayers: int, inv_range: tuple[float, float], pad: i
                    buf.coc_model.c0 / np.where(depth >= MISS_DEPTH, 1.0, depth)
                    + buf.coc_model.c1)
     mot = buf.motion.reshape(-1, 2).astype(np.float64)
-    # float32 like the kernel (floor of the centre must agree); coc and motion beyond the
-    # table's range re-centre by their clamped values
+    # float32 like the kernel (floor of the centre must agree); a CoC beyond the table's
+    # range re-centres by its clamped value
     smax = np.asarray(smax, np.float32)
     coc32, pos = coc.astype(np.float32), buf.position.reshape(-1, 2)
     a32 = np.abs(coc32)
     cs = np.where(a32 > smax[0], smax[0] / np.where(a32 > 0, a32, 1), np.float32(1))
     centre = pos - (coc32 * cs)[:, None] * buf.lens.reshape(-1, 2)
+    nsub = np.ones(len(depth), np.int64)
+    m32 = buf.motion.reshape(-1, 2)
     if rotate:
-        m32 = buf.motion.reshape(-1, 2)
         l32 = np.hypot(m32[:, 0], m32[:, 1]).astype(np.float32)
-        ms = np.where(l32 > smax[-1], smax[-1] / np.where(l32 > 0, l32, 1), np.float32(1))
-        centre = centre - ((buf.time.reshape(-1) - np.float32(0.5)) * ms)[:, None] * m32
+        # a segment beyond the table's range: nsub sub-segments, each within it
+        nsub = np.where(l32 > smax[-1], np.ceil(l32 / smax[-1]), 1).astype(np.int64)
+        centre = centre - (buf.time.reshape(-1) - np.float32(0.5))[:, None] * m32
     layer = layer_of(depth, *inv_range, nlayers)
     mlen = np.hypot(mot[:, 0], mot[:, 1])
-    params = np.stack([np.abs(coc), mlen], -1) if rotate else np.abs(coc)[:, None]
+    params = np.stack([np.abs(coc), mlen / nsub], -1) if rotate else np.abs(coc)[:, None]
     cells = grid(params)
     col = np.concatenate([buf.color.reshape(-1, 3), np.ones((len(depth), 1))], 1) / s
     for k in range(len(depth)):
@@ -141,14 +143,18 @@ def splat(buf, table, grid, nlayers: int, inv_range: tuple[float, float], pad: i
         dx, dy = p[:, 0].astype(np.float32), p[:, 1].astype(np.float32)
         if rotate and mlen[k] > 0:
             # float32 like the kernel: rounding of rotated offsets must agree exactly
-            m32 = mot[k].astype(np.float32)
-            cs, sn = m32 / np.float32(np.hypot(*m32))
+            mk = mot[k].astype(np.float32)
+            cs, sn = mk / np.float32(np.hypot(*mk))
             dx, dy = np.rint(dx * cs - dy * sn), np.rint(dx * sn + dy * cs)
-        cx, cy = np.floor(centre[k, 0]) + pad, np.floor(centre[k, 1]) + pad
-        if not (reach <= cx < pw - reach and reach <= cy < ph - reach):
-            continue
-        x, y = (cx + dx).astype(np.int64), (cy + dy).astype(np.int64)
-        np.add.at(img[layer[k]], (y, x), v[:, None] * col[k][None, :])
+        n = int(nsub[k])
+        for j in range(n):
+            f = np.float32((np.float32(j) + np.float32(0.5)) / np.float32(n) - np.float32(0.5))
+            cj = centre[k] + f * m32[k] if rotate else centre[k]
+            cx, cy = np.floor(cj[0]) + pad, np.floor(cj[1]) + pad
+            if not (reach <= cx < pw - reach and reach <= cy < ph - reach):
+                continue
+            x, y = (cx + dx).astype(np.int64), (cy + dy).astype(np.int64)
+            np.add.at(img[layer[k]], (y, x), v[:, None] * (col[k] / n)[None, :])
     return lap, direct
 
 
