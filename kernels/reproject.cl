@@ -66,6 +66,91 @@ inline void splat(__global float *grid, int dim, int gx, int gy, float wt, float
     }
 }
 
+/* VW consecutive samples of a pixel in one vector: SPP's largest factor among 8 and 4 (CPU
+ * compilers map floatVW onto SIMD registers; VW = 1 otherwise). Each lane computes exactly
+ * the scalar expression (FP_CONTRACT is off in layered.h), so every width gives the same
+ * grids. Writes per lane the grid position, the colour and the depth bucket (as float). */
+#if SPP % 8 == 0
+#define VW 8
+#elif SPP % 4 == 0
+#define VW 4
+#else
+#define VW 1
+#endif
+
+#if VW == 8
+typedef float8 floatv;
+typedef int8 intv;
+#define VLOAD vload8
+#define VSTORE vstore8
+#define VLOAD2 vload16
+#define DEINTERLEAVE3(a, b, d, r, g, bl)                                                   \
+    r = (float8)(a.s0, a.s3, a.s6, b.s1, b.s4, b.s7, d.s2, d.s5);                           \
+    g = (float8)(a.s1, a.s4, a.s7, b.s2, b.s5, d.s0, d.s3, d.s6);                           \
+    bl = (float8)(a.s2, a.s5, b.s0, b.s3, b.s6, d.s1, d.s4, d.s7)
+#elif VW == 4
+typedef float4 floatv;
+typedef int4 intv;
+#define VLOAD vload4
+#define VSTORE vstore4
+#define VLOAD2 vload8
+#define DEINTERLEAVE3(a, b, d, r, g, bl)                                                   \
+    r = (float4)(a.s0, a.s3, b.s2, d.s1);                                                   \
+    g = (float4)(a.s1, b.s0, b.s3, d.s2);                                                   \
+    bl = (float4)(a.s2, b.s1, d.s0, d.s3)
+#endif
+
+inline void reproject_lanes(size_t s0, __global const float *color,
+                            __global const float *position, __global const float *depth,
+                            __global const float *lens, __global const float *time,
+                            float ka, float kb, float kc, float A, float2 bm, int x0, int y0,
+                            float inv_s, float g, float *gx, float *gy, float *r, float *gr,
+                            float *bl, float *bk)
+{
+#if VW == 1
+    const float2 q0 = vload2(s0, position) - A * vload2(s0, lens);
+    float2 q = q0;
+#if HAS_MOTION
+    q -= (time[s0] - 0.5f) * bm;
+#endif
+    gx[0] = (q.x - x0) * inv_s + g;
+    gy[0] = (q.y - y0) * inv_s + g;
+    const float3 c = vload3(s0, color);
+    r[0] = c.x;
+    gr[0] = c.y;
+    bl[0] = c.z;
+    bk[0] = (float)layered_bucket(depth[s0], ka, kb, kc);
+#else
+    const floatv w = VLOAD(0, depth + s0);
+    floatv l = ka / w;
+    l = l + kb * w;
+    l = l - kc;
+    l = clamp(floor(l), 0.0f, (float)(NBUCKETS - 2));
+    /* misses and NaN: the last bucket, as layered_bucket */
+    VSTORE(select((floatv)(NBUCKETS - 1), l, isless(w, (floatv)(MISS_DEPTH))), 0, bk);
+#if VW == 8
+    const float16 pp = VLOAD2(0, position + 2 * s0), ll = VLOAD2(0, lens + 2 * s0);
+#else
+    const float8 pp = VLOAD2(0, position + 2 * s0), ll = VLOAD2(0, lens + 2 * s0);
+#endif
+    floatv qx = pp.even - A * ll.even, qy = pp.odd - A * ll.odd;
+#if HAS_MOTION
+    const floatv dt = VLOAD(0, time + s0) - 0.5f;
+    qx -= dt * bm.x;
+    qy -= dt * bm.y;
+#endif
+    VSTORE((qx - (float)x0) * inv_s + g, 0, gx);
+    VSTORE((qy - (float)y0) * inv_s + g, 0, gy);
+    const floatv ca = VLOAD(0, color + 3 * s0), cb = VLOAD(1, color + 3 * s0),
+                 cd = VLOAD(2, color + 3 * s0);
+    floatv vr, vg, vb;
+    DEINTERLEAVE3(ca, cb, cd, vr, vg, vb);
+    VSTORE(vr, 0, r);
+    VSTORE(vg, 0, gr);
+    VSTORE(vb, 0, bl);
+#endif
+}
+
 __kernel __attribute__((reqd_work_group_size(WG_X, 1, 1)))
 void reproject(__global const float *color, __global const float *position,
                __global const float *depth, __global const float *lens,
@@ -110,34 +195,35 @@ void reproject(__global const float *color, __global const float *position,
         if (px < ax || px >= bx || py < ay || py >= by)
             continue;
         const size_t base = ((size_t)py * width + px) * SPP;
-        for (int i = 0; i < SPP; ++i) {
-            const size_t si = base + i;
-            const int b = layered_bucket(depth[si], ka, kb, kc);
-            if (b < lo)
-                continue;
-            float2 q = vload2(si, position) - A * vload2(si, lens);
-#if HAS_MOTION
-            q -= (time[si] - 0.5f) * bm;
-#endif
-            const float gxf = (q.x - x0) * inv_s + g, gyf = (q.y - y0) * inv_s + g;
-            const float3 c = vload3(si, color);
-            const int own = b <= hi;
+        for (int i0 = 0; i0 < SPP; i0 += VW) {
+            /* VW samples at once (SIMD on CPUs), then added one by one */
+            float gxa[VW], gya[VW], ra[VW], ga[VW], ba[VW], bka[VW];
+            reproject_lanes(base + i0, color, position, depth, lens, time, ka, kb, kc, A, bm,
+                            x0, y0, inv_s, g, gxa, gya, ra, ga, ba, bka);
+            for (int j = 0; j < VW; ++j) {
+                const int b = (int)bka[j];
+                if (b < lo)
+                    continue;
+                const float gxf = gxa[j], gyf = gya[j];
+                const float3 c = (float3)(ra[j], ga[j], ba[j]);
+                const int own = b <= hi;
 #if SPLAT_BILINEAR
-            const float fx = gxf - 0.5f, fy = gyf - 0.5f;
-            const float ix = floor(fx), iy = floor(fy);
-            const float wx = fx - ix, wy = fy - iy;
-            if (ix < -1.0f || iy < -1.0f || ix >= dim || iy >= dim)
-                continue;
-            const int jx = (int)ix, jy = (int)iy;
-            splat(grid, dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own);
-            splat(grid, dim, jx + 1, jy, wx * (1.0f - wy), c, own);
-            splat(grid, dim, jx, jy + 1, (1.0f - wx) * wy, c, own);
-            splat(grid, dim, jx + 1, jy + 1, wx * wy, c, own);
+                const float fx = gxf - 0.5f, fy = gyf - 0.5f;
+                const float ix = floor(fx), iy = floor(fy);
+                const float wx = fx - ix, wy = fy - iy;
+                if (ix < -1.0f || iy < -1.0f || ix >= dim || iy >= dim)
+                    continue;
+                const int jx = (int)ix, jy = (int)iy;
+                splat(grid, dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own);
+                splat(grid, dim, jx + 1, jy, wx * (1.0f - wy), c, own);
+                splat(grid, dim, jx, jy + 1, (1.0f - wx) * wy, c, own);
+                splat(grid, dim, jx + 1, jy + 1, wx * wy, c, own);
 #else
-            if (gxf < 0.0f || gyf < 0.0f || gxf >= dim || gyf >= dim)
-                continue;
-            splat(grid, dim, (int)gxf, (int)gyf, 1.0f, c, own);
+                if (gxf < 0.0f || gyf < 0.0f || gxf >= dim || gyf >= dim)
+                    continue;
+                splat(grid, dim, (int)gxf, (int)gyf, 1.0f, c, own);
 #endif
+            }
         }
     }
 }

@@ -43,6 +43,27 @@ def test_reproject_matches_reference(device, rng, bilinear, wg, motion, sub):
                  rtol=1e-4, atol=2e-4, what="grids")
 
 
+@pytest.mark.parametrize("spp", [1, 3, 8, 16])
+def test_reproject_every_vector_width_matches_reference(device, rng, spp):
+    """The kernel reprojects a pixel's samples 8 or 4 at a time (SIMD) when spp allows, one at
+    a time otherwise: every width must give the reference's grids."""
+    buf = frame(rng, s=spp)
+    lay = ref.Layout(**{**LAY.__dict__, "spp": spp})
+    params = params_of(buf, lay)
+    q = device.queue
+    shape = params.shape[:2] + (ref.NCH, lay.dmax * lay.dmax)
+    grids = empty(q, shape)
+    k = kabc(buf, lay)
+    ev = Reproject(device.context, lay, False, LocalSize(1, 1))(
+        q, upload(q, buf), k, to_device(q, params), grids)
+    got = read(q, grids, shape, [ev])
+    want = ref.reproject(fields(buf), params.astype(np.float64), k, lay)
+    g, w = ref.used_grid(got, params), ref.used_grid(want, params)
+    assert sum(x[3].sum() for x in w) > 0
+    assert_close(np.concatenate([x.ravel() for x in g]), np.concatenate([x.ravel() for x in w]),
+                 rtol=1e-4, atol=2e-4, what="grids")
+
+
 def test_reprojection_of_one_sample():
     """A sample at (5.3, 6.1) with lens (0.5, 0), t = 1, CoC-mean 2 and motion (4, 0)
     lands at x' = 5.3 - 2 * 0.5 - 0.5 * 4 = 2.3 (grid x = 2.3 + G)."""
