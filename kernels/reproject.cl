@@ -141,13 +141,6 @@ inline void reproject_lanes(size_t s0, __global const float *color,
 #endif
     VSTORE((qx - (float)x0) * inv_s + g, 0, gx);
     VSTORE((qy - (float)y0) * inv_s + g, 0, gy);
-    const floatv ca = VLOAD(0, color + 3 * s0), cb = VLOAD(1, color + 3 * s0),
-                 cd = VLOAD(2, color + 3 * s0);
-    floatv vr, vg, vb;
-    DEINTERLEAVE3(ca, cb, cd, vr, vg, vb);
-    VSTORE(vr, 0, r);
-    VSTORE(vg, 0, gr);
-    VSTORE(vb, 0, bl);
 #endif
 }
 
@@ -177,9 +170,11 @@ void reproject(__global const float *color, __global const float *position,
     const int ay = max(0, y0 - reach), by = min(height, y0 + TILE + reach);
     /* SUBSAMPLE: a slot on a grid of spacing s > 1 gathers one pixel (all its samples) per
      * b x b block of the image, b = min(s, SUBSAMPLE_MAX), the pixel picked by a hash of the
-     * block (the same in every tile); the slot's channels are divided by each other, so the
-     * common weight b^2 of the kept samples cancels. The cap keeps >= (s / 4)^2 pixels per
-     * grid pixel on very coarse grids (1 per grid pixel lost 0.6 dB on 280 px motion). */
+     * block's row (the same in every tile): one image row per block row, every b-th pixel of
+     * it, so the reads stream (a hash per block scattered them: 1.5x slower). The slot's
+     * channels are divided by each other, so the common weight b^2 of the kept samples
+     * cancels. The cap keeps >= (s / 4)^2 pixels per grid pixel on very coarse grids (1 per
+     * grid pixel lost 0.6 dB on 280 px motion). */
     const int sub = SUBSAMPLE ? min((int)p[P_SCALE], SUBSAMPLE_MAX) : 1;
     const int cx0 = ax / sub, cy0 = ay / sub;
     const int nbw = (bx + sub - 1) / sub - cx0, nbh = (by + sub - 1) / sub - cy0;
@@ -188,7 +183,7 @@ void reproject(__global const float *color, __global const float *position,
         const int cx = cx0 + k % nbw, cy = cy0 + k / nbw;
         int px = cx * sub, py = cy * sub;
         if (sub > 1) {
-            const uint h = block_hash(cx, cy, sub);
+            const uint h = block_hash(0, cy, sub);
             px += (int)(h % (uint)sub);
             py += (int)((h >> 16) % (uint)sub);
         }
@@ -205,7 +200,11 @@ void reproject(__global const float *color, __global const float *position,
                 if (b < lo)
                     continue;
                 const float gxf = gxa[j], gyf = gya[j];
+#if VW == 1
                 const float3 c = (float3)(ra[j], ga[j], ba[j]);
+#else
+                const float3 c = vload3(base + i0 + j, color);
+#endif
                 const int own = b <= hi;
 #if SPLAT_BILINEAR
                 const float fx = gxf - 0.5f, fy = gyf - 0.5f;

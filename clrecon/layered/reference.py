@@ -274,9 +274,9 @@ def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False,
             b = bk[sl].ravel()
             keep = b >= p[P_LO]
             sub = min(int(p[P_SCALE]), 4) if subsample else 1
-            if sub > 1:  # one hashed pixel per sub x sub block (kernels/reproject.cl)
+            if sub > 1:  # one pixel per sub x sub block (kernels/reproject.cl)
                 ys, xs = np.mgrid[sl]
-                hh = block_hash(xs // sub, ys // sub, sub)
+                hh = block_hash(0, ys // sub, sub)  # per block row: the reads stream
                 pick = (xs % sub == hh % sub) & (ys % sub == (hh >> 16) % sub)
                 keep &= np.repeat(pick.ravel(), depth.shape[2])
             own = (b <= p[P_HI])[keep]
