@@ -17,8 +17,8 @@
  *   sampled at integers (the same discrete filter the Gaussian taps apply; for s_u >= 2 it is
  *   s_u^2, for the in-focus 0.33 px about 0.02). Eq. 10's gamma = exp(-sqrt2 / s_u) is the
  *   large-s_u limit.
- * filter_sheared_y: one work-item per filtered pixel (i, j) in [-1, T/s]^2 of a slot, range
- *   (FT, FT, tiles * MAXP): out = sum_k exp(-k^2 / (2 s_v^2)) grid((i, j) + G + k e),
+ * filter_sheared_y: one work-item per four filtered pixels (i .. i + 3, j) in [-1, T/s]^2 of a
+ *   slot, range (ceil(FT / 4), FT, tiles * MAXP), computed as float4s: out = sum_k exp(-k^2 / (2 s_v^2)) grid((i, j) + G + k e),
  *   e = (beta, 1) or (1, beta), k = -ceil(3 s_v) .. ceil(3 s_v), linear interpolation along
  *   the recursive axis, taps outside the grid dropped. Unnormalised: composite divides the
  *   channels by each other.
@@ -91,26 +91,49 @@ __kernel void filter_sheared_x(__global const float *params, __global float *gri
     }
 }
 
+/* Taps of one output along the recursive axis, lane by lane (the vector path's edge case):
+ * adds the tap at (u, w) with fraction f and weight wk to lane l of acc if it lies inside the
+ * grid, with the scalar rule (u < -1 or u >= dim, or w outside: dropped). */
+#define EDGE_LANE(l, uu, ww)                                                              \
+    do {                                                                                  \
+        const int u_ = (uu), w_ = (ww);                                                   \
+        if (w_ >= 0 && w_ < dim && u_ >= -1 && u_ < dim) {                                \
+            const float wa_ = u_ >= 0 ? wk * (1.0f - f) : 0.0f;                           \
+            const float wb_ = u_ + 1 < dim ? wk * f : 0.0f;                               \
+            for (int c = 0; c < NCH; ++c) {                                               \
+                __global const float *r_ = grid + c * DMAX * DMAX + w_ * sw;              \
+                acc[c].s##l += (wa_ != 0.0f ? wa_ * r_[u_ * su] : 0.0f)                   \
+                               + (wb_ != 0.0f ? wb_ * r_[(u_ + 1) * su] : 0.0f);          \
+            }                                                                             \
+        }                                                                                 \
+    } while (0)
+
 __kernel void filter_sheared_y(__global const float *params, __global const float *grids,
                                __global float *filtered)
 {
-    const int i = get_global_id(0) - 1, j = get_global_id(1) - 1, slot = get_global_id(2);
+    /* four outputs (i0 .. i0 + 3, j) per work-item, as one float4 per channel: along x they
+     * are consecutive in the grid for either axis (axis 0: along u, axis 1: along w), so a
+     * tap is two vector loads per channel where all four lanes lie inside the grid */
+    const int i0 = 4 * (int)get_global_id(0) - 1, j = get_global_id(1) - 1;
+    const int slot = get_global_id(2);
     __global const float *p = params + (size_t)slot * NPAR;
     const int dim = (int)p[P_DIM];
     if (dim == 0)
         return;
     const int side = TILE / (int)p[P_SCALE];
-    if (i > side || j > side)
+    if (i0 > side || j > side)
         return;
     const int g = (int)p[P_GUARD];
     const float sv = p[P_SHV], beta = p[P_BETA];
     /* (u, w): position along the recursive axis and the tap axis; axis 1 swaps x and y */
     const int ax = p[P_AXIS] != 0.0f;
-    const int u0 = (ax ? j : i) + g, w0 = (ax ? i : j) + g;
+    const int u0 = (ax ? j : i0) + g, w0 = (ax ? i0 : j) + g;   /* of lane 0 */
     const int su = ax ? dim : 1, sw = ax ? 1 : dim;   /* strides of u and w in the grid */
     const int kmax = min((int)ceil(3.0f * sv), dim);
     const float inv = -0.5f / (sv * sv);
-    float acc[NCH] = {0.0f};
+    float4 acc[NCH];
+    for (int c = 0; c < NCH; ++c)
+        acc[c] = (float4)(0.0f);
     __global const float *grid = grids + (size_t)slot * NCH * DMAX * DMAX;
     /* the taps exp(inv k^2) by recurrence: w_{k+1} = w_k r_k, r_{k+1} = r_k q, q = exp(2 inv),
      * so two exp per pixel instead of one per tap (relative error < 1e-5 over 2 kmax steps) */
@@ -119,23 +142,60 @@ __kernel void filter_sheared_y(__global const float *params, __global const floa
     const float q = exp(2.0f * inv);
     for (int k = -kmax; k <= kmax; ++k, wk *= rk, rk *= q) {
         const int w = w0 + k;
-        if (w < 0 || w >= dim)
-            continue;
         const float uf = (float)u0 + beta * (float)k;
         const float fu = floor(uf);
         const float f = uf - fu;
         const int u = (int)fu;
-        if (u < -1 || u >= dim)
-            continue;
-        const float wa = u >= 0 ? wk * (1.0f - f) : 0.0f;
-        const float wb = u + 1 < dim ? wk * f : 0.0f;
-        for (int c = 0; c < NCH; ++c) {
-            __global const float *r = grid + c * DMAX * DMAX + w * sw;
-            acc[c] += (wa != 0.0f ? wa * r[u * su] : 0.0f)
-                      + (wb != 0.0f ? wb * r[(u + 1) * su] : 0.0f);
+        if (ax == 0) {
+            /* lanes at (u + l, w): w shared */
+            if (w < 0 || w >= dim)
+                continue;
+            if (u >= 0 && u + 4 < dim) {
+                const float wa = wk * (1.0f - f), wb = wk * f;
+                for (int c = 0; c < NCH; ++c) {
+                    __global const float *r = grid + c * DMAX * DMAX + w * dim + u;
+                    acc[c] += wa * vload4(0, r) + wb * vload4(0, r + 1);
+                }
+            } else {
+                EDGE_LANE(0, u, w);
+                EDGE_LANE(1, u + 1, w);
+                EDGE_LANE(2, u + 2, w);
+                EDGE_LANE(3, u + 3, w);
+            }
+        } else {
+            /* lanes at (u, w + l): u shared */
+            if (u < -1 || u >= dim)
+                continue;
+            if (w >= 0 && w + 3 < dim) {
+                const float wa = u >= 0 ? wk * (1.0f - f) : 0.0f;
+                const float wb = u + 1 < dim ? wk * f : 0.0f;
+                for (int c = 0; c < NCH; ++c) {
+                    __global const float *r = grid + c * DMAX * DMAX + w;
+                    float4 v = (float4)(0.0f);
+                    if (wa != 0.0f)
+                        v = wa * vload4(0, r + u * dim);
+                    if (wb != 0.0f)
+                        v += wb * vload4(0, r + (u + 1) * dim);
+                    acc[c] += v;
+                }
+            } else {
+                EDGE_LANE(0, u, w);
+                EDGE_LANE(1, u, w + 1);
+                EDGE_LANE(2, u, w + 2);
+                EDGE_LANE(3, u, w + 3);
+            }
         }
     }
-    __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);
-    for (int c = 0; c < NCH; ++c)
-        out[c * FT * FT] = acc[c];
+    __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i0 + 1);
+    const int nl = min(4, side - i0 + 1);   /* lanes with i <= side */
+    for (int c = 0; c < NCH; ++c) {
+        __global float *o = out + c * FT * FT;
+        o[0] = acc[c].s0;
+        if (nl > 1)
+            o[1] = acc[c].s1;
+        if (nl > 2)
+            o[2] = acc[c].s2;
+        if (nl > 3)
+            o[3] = acc[c].s3;
+    }
 }

@@ -3,6 +3,7 @@ against the NumPy reference, and the sheared decomposition against the rotated G
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pytest
 from conftest import assert_close
 from layered_frames import LAY, empty, fields, frame, kabc, read, to_device
@@ -12,6 +13,7 @@ from clrecon.layered import reference as ref
 from clrecon.layered.filter_mip import FilterMip
 from clrecon.layered.filter_rotated import FilterRotated
 from clrecon.layered.filter_sheared import FilterSheared
+from clrecon.layered.passes import local_for
 
 
 def inputs(rng, lay=LAY):
@@ -23,6 +25,10 @@ def inputs(rng, lay=LAY):
 
 def test_filter_sheared_matches_reference(device, rng):
     params, grids = inputs(rng)
+    used = params[..., ref.P_DIM] > 0
+    # both decompositions (the kernel's float4 lanes run along u or w), fine and coarse grids
+    assert set(params[..., ref.P_AXIS][used].tolist()) == {0.0, 1.0}
+    assert len(set(params[..., ref.P_SCALE][used].tolist())) > 1
     q = device.queue
     nslots = params.shape[0] * params.shape[1]
     fshape = params.shape[:2] + (ref.NCH, LAY.ft ** 2)
@@ -40,6 +46,38 @@ def test_filter_sheared_matches_reference(device, rng):
     assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, LAY)]),
                  np.concatenate([g.ravel() for g in ref.used_filtered(want, params, LAY)]),
                  rtol=1e-4, atol=1e-4, what="sheared y")
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+@pytest.mark.parametrize("beta", [-2.7, 0.4, 3.1])
+def test_filter_sheared_y_where_shear_leaves_the_grid(device, rng, axis, beta):
+    """A steep shear and a thin guard band move taps past every edge of the grid, where the
+    kernel's float4 lanes fall back to lane-by-lane taps; the result must still be the
+    reference's (taps outside the grid dropped)."""
+    lay = LAY
+    params = np.zeros((2, lay.maxp, ref.NPAR), np.float32)
+    for t, (scale, guard) in enumerate(((1, 3), (2, 2))):
+        p = params[t, 0]
+        p[[ref.P_SHV, ref.P_BETA, ref.P_SCALE, ref.P_GUARD, ref.P_AXIS]] = \
+            [2.3, beta, scale, guard, axis]
+        p[ref.P_DIM] = lay.tile // scale + 2 * guard
+    grids = np.zeros(params.shape[:2] + (ref.NCH, lay.dmax ** 2), np.float32)
+    for t in range(2):
+        dim = int(params[t, 0, ref.P_DIM])
+        grids[t, 0, :, :dim * dim] = rng.random((ref.NCH, dim * dim))
+    q = device.queue
+    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
+    filtered = empty(q, fshape)
+    fs = FilterSheared(device.context, lay)
+    d_params, d_grids = to_device(q, params), to_device(q, grids)  # alive until read
+    fs.ky.set_args(d_params, d_grids, filtered)
+    gsz, loc = local_for(fs.local, (-(-lay.ft // 4), lay.ft, params.shape[0] * lay.maxp))
+    ev = cl.enqueue_nd_range_kernel(q, fs.ky, gsz, loc)
+    got = read(q, filtered, fshape, [ev])
+    want = ref.filter_sheared_y(params.astype(np.float64), grids.astype(np.float64), lay)
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
+                 rtol=1e-4, atol=1e-4, what="sheared y at the edges")
 
 
 def test_filter_rotated_matches_reference(device, rng):

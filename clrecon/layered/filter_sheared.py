@@ -32,7 +32,7 @@ class FilterSheared:
         ex = cl.enqueue_nd_range_kernel(queue, self.kx, (self.lay.dmax, nslots), None,
                                         wait_for=wait_for)
         self.ky.set_args(params, grids, filtered)
-        g, loc = local_for(self.local, (self.lay.ft, self.lay.ft, nslots))
+        g, loc = local_for(self.local, (-(-self.lay.ft // 4), self.lay.ft, nslots))
         ey = cl.enqueue_nd_range_kernel(queue, self.ky, g, loc, wait_for=[ex])
         self.events = [("filter_sheared_x", ex), ("filter_sheared_y", ey)]
         return ey
