@@ -178,50 +178,54 @@ void reproject(__global const float *color, __global const float *position,
     const int sub = SUBSAMPLE ? min((int)p[P_SCALE], SUBSAMPLE_MAX) : 1;
     const int cx0 = ax / sub, cy0 = ay / sub;
     const int nbw = (bx + sub - 1) / sub - cx0, nbh = (by + sub - 1) / sub - cy0;
-    const int n = ax < bx && ay < by ? nbw * nbh : 0;
-    for (int k = lid; k < n; k += WG_X) {
-        const int cx = cx0 + k % nbw, cy = cy0 + k / nbw;
-        int px = cx * sub, py = cy * sub;
+    for (int cy = cy0; cy < cy0 + nbh; ++cy) {
+        /* the block row's pixel row and column offset (one hash per row) */
+        int py = cy * sub, ox = 0;
         if (sub > 1) {
             const uint h = block_hash(0, cy, sub);
-            px += (int)(h % (uint)sub);
+            ox = (int)(h % (uint)sub);
             py += (int)((h >> 16) % (uint)sub);
         }
-        if (px < ax || px >= bx || py < ay || py >= by)
+        if (py < ay || py >= by)
             continue;
-        const size_t base = ((size_t)py * width + px) * SPP;
-        for (int i0 = 0; i0 < SPP; i0 += VW) {
-            /* VW samples at once (SIMD on CPUs), then added one by one */
-            float gxa[VW], gya[VW], ra[VW], ga[VW], ba[VW], bka[VW];
-            reproject_lanes(base + i0, color, position, depth, lens, time, ka, kb, kc, A, bm,
-                            x0, y0, inv_s, g, gxa, gya, ra, ga, ba, bka);
-            for (int j = 0; j < VW; ++j) {
-                const int b = (int)bka[j];
-                if (b < lo)
-                    continue;
-                const float gxf = gxa[j], gyf = gya[j];
+        for (int cx = cx0 + lid; cx < cx0 + nbw; cx += WG_X) {
+            const int px = cx * sub + ox;
+            if (px < ax || px >= bx)
+                continue;
+            const size_t base = ((size_t)py * width + px) * SPP;
+            for (int i0 = 0; i0 < SPP; i0 += VW) {
+                /* VW samples at once (SIMD on CPUs), then added one by one */
+                float gxa[VW], gya[VW], ra[VW], ga[VW], ba[VW], bka[VW];
+                reproject_lanes(base + i0, color, position, depth, lens, time, ka, kb, kc, A, bm,
+                                x0, y0, inv_s, g, gxa, gya, ra, ga, ba, bka);
+                for (int j = 0; j < VW; ++j) {
+                    const int b = (int)bka[j];
+                    if (b < lo)
+                        continue;
+                    const float gxf = gxa[j], gyf = gya[j];
 #if VW == 1
-                const float3 c = (float3)(ra[j], ga[j], ba[j]);
+                    const float3 c = (float3)(ra[j], ga[j], ba[j]);
 #else
-                const float3 c = vload3(base + i0 + j, color);
+                    const float3 c = vload3(base + i0 + j, color);
 #endif
-                const int own = b <= hi;
+                    const int own = b <= hi;
 #if SPLAT_BILINEAR
-                const float fx = gxf - 0.5f, fy = gyf - 0.5f;
-                const float ix = floor(fx), iy = floor(fy);
-                const float wx = fx - ix, wy = fy - iy;
-                if (ix < -1.0f || iy < -1.0f || ix >= dim || iy >= dim)
-                    continue;
-                const int jx = (int)ix, jy = (int)iy;
-                splat(grid, dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own);
-                splat(grid, dim, jx + 1, jy, wx * (1.0f - wy), c, own);
-                splat(grid, dim, jx, jy + 1, (1.0f - wx) * wy, c, own);
-                splat(grid, dim, jx + 1, jy + 1, wx * wy, c, own);
+                    const float fx = gxf - 0.5f, fy = gyf - 0.5f;
+                    const float ix = floor(fx), iy = floor(fy);
+                    const float wx = fx - ix, wy = fy - iy;
+                    if (ix < -1.0f || iy < -1.0f || ix >= dim || iy >= dim)
+                        continue;
+                    const int jx = (int)ix, jy = (int)iy;
+                    splat(grid, dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own);
+                    splat(grid, dim, jx + 1, jy, wx * (1.0f - wy), c, own);
+                    splat(grid, dim, jx, jy + 1, (1.0f - wx) * wy, c, own);
+                    splat(grid, dim, jx + 1, jy + 1, wx * wy, c, own);
 #else
-                if (gxf < 0.0f || gyf < 0.0f || gxf >= dim || gyf >= dim)
-                    continue;
-                splat(grid, dim, (int)gxf, (int)gyf, 1.0f, c, own);
+                    if (gxf < 0.0f || gyf < 0.0f || gxf >= dim || gyf >= dim)
+                        continue;
+                    splat(grid, dim, (int)gxf, (int)gyf, 1.0f, c, own);
 #endif
+                }
             }
         }
     }
