@@ -69,7 +69,7 @@ inline void splat(__global float *grid, int dim, int gx, int gy, float wt, float
 /* VW consecutive samples of a pixel in one vector: SPP's largest factor among 8 and 4 (CPU
  * compilers map floatVW onto SIMD registers; VW = 1 otherwise). Each lane computes exactly
  * the scalar expression (FP_CONTRACT is off in layered.h), so every width gives the same
- * grids. Writes per lane the grid position, the colour and the depth bucket (as float). */
+ * grids. Writes per lane the grid position and the depth bucket (as float). */
 #if SPP % 8 == 0
 #define VW 8
 #elif SPP % 4 == 0
@@ -84,41 +84,27 @@ typedef int8 intv;
 #define VLOAD vload8
 #define VSTORE vstore8
 #define VLOAD2 vload16
-#define DEINTERLEAVE3(a, b, d, r, g, bl)                                                   \
-    r = (float8)(a.s0, a.s3, a.s6, b.s1, b.s4, b.s7, d.s2, d.s5);                           \
-    g = (float8)(a.s1, a.s4, a.s7, b.s2, b.s5, d.s0, d.s3, d.s6);                           \
-    bl = (float8)(a.s2, a.s5, b.s0, b.s3, b.s6, d.s1, d.s4, d.s7)
 #elif VW == 4
 typedef float4 floatv;
 typedef int4 intv;
 #define VLOAD vload4
 #define VSTORE vstore4
 #define VLOAD2 vload8
-#define DEINTERLEAVE3(a, b, d, r, g, bl)                                                   \
-    r = (float4)(a.s0, a.s3, b.s2, d.s1);                                                   \
-    g = (float4)(a.s1, b.s0, b.s3, d.s2);                                                   \
-    bl = (float4)(a.s2, b.s1, d.s0, d.s3)
 #endif
 
-inline void reproject_lanes(size_t s0, __global const float *color,
-                            __global const float *position, __global const float *depth,
-                            __global const float *lens, __global const float *time,
+inline void reproject_lanes(size_t s0, __global const float *position,
+                            __global const float *depth, __global const float *lens,
+                            __global const float *time,
                             float ka, float kb, float kc, float A, float2 bm, int x0, int y0,
-                            float inv_s, float g, float *gx, float *gy, float *r, float *gr,
-                            float *bl, float *bk)
+                            float inv_s, float g, float *gx, float *gy, float *bk)
 {
 #if VW == 1
-    const float2 q0 = vload2(s0, position) - A * vload2(s0, lens);
-    float2 q = q0;
+    float2 q = vload2(s0, position) - A * vload2(s0, lens);
 #if HAS_MOTION
     q -= (time[s0] - 0.5f) * bm;
 #endif
     gx[0] = (q.x - x0) * inv_s + g;
     gy[0] = (q.y - y0) * inv_s + g;
-    const float3 c = vload3(s0, color);
-    r[0] = c.x;
-    gr[0] = c.y;
-    bl[0] = c.z;
     bk[0] = (float)layered_bucket(depth[s0], ka, kb, kc);
 #else
     const floatv w = VLOAD(0, depth + s0);
@@ -195,19 +181,15 @@ void reproject(__global const float *color, __global const float *position,
             const size_t base = ((size_t)py * width + px) * SPP;
             for (int i0 = 0; i0 < SPP; i0 += VW) {
                 /* VW samples at once (SIMD on CPUs), then added one by one */
-                float gxa[VW], gya[VW], ra[VW], ga[VW], ba[VW], bka[VW];
-                reproject_lanes(base + i0, color, position, depth, lens, time, ka, kb, kc, A, bm,
-                                x0, y0, inv_s, g, gxa, gya, ra, ga, ba, bka);
+                float gxa[VW], gya[VW], bka[VW];
+                reproject_lanes(base + i0, position, depth, lens, time, ka, kb, kc, A, bm, x0,
+                                y0, inv_s, g, gxa, gya, bka);
                 for (int j = 0; j < VW; ++j) {
                     const int b = (int)bka[j];
                     if (b < lo)
                         continue;
                     const float gxf = gxa[j], gyf = gya[j];
-#if VW == 1
-                    const float3 c = (float3)(ra[j], ga[j], ba[j]);
-#else
-                    const float3 c = vload3(base + i0 + j, color);
-#endif
+                    const float3 c = vload3(base + i0 + j, color);   /* kept samples only */
                     const int own = b <= hi;
 #if SPLAT_BILINEAR
                     const float fx = gxf - 0.5f, fy = gyf - 0.5f;
