@@ -209,7 +209,9 @@ def test_knob_errors(device, rng):
     buf = frame(rng)
     for knobs, word in ((dict(mode="fast"), "mode"), (dict(filter="box"), "filter"),
                         (dict(tile=24), "tile"), (dict(stats_stride=0), "stats_stride"),
-                        (dict(splat="cubic"), "splat"), (dict(max_partitions=0), "max_part")):
+                        (dict(splat="cubic"), "splat"), (dict(max_partitions=0), "max_part"),
+                        (dict(subsample=0), "subsample"), (dict(subsample=2.5), "subsample"),
+                        (dict(subsample="lots"), "subsample")):
         with pytest.raises(ValueError, match=word):
             clrecon.reconstruct(buf, "layered", device, **knobs)
     with pytest.raises(TypeError, match="unknown knobs"):

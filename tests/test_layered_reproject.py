@@ -20,9 +20,10 @@ def params_of(buf, lay, threshold=0.1, sigma_x=0.33):
 @pytest.mark.parametrize("bilinear,wg,motion,sub", [(False, 1, True, True), (True, 1, True, True),
                                                     (False, 16, True, True),
                                                     (True, 8, False, True),
-                                                    (False, 1, True, False)],
+                                                    (False, 1, True, False),
+                                                    (False, 1, True, 2)],
                          ids=["nearest", "bilinear", "nearest-atomic", "bilinear-atomic-nomo",
-                              "no-subsample"])
+                              "no-subsample", "subsample-2"])
 def test_reproject_matches_reference(device, rng, bilinear, wg, motion, sub):
     buf = frame(rng, motion=motion)
     lay = ref.Layout(**{**LAY.__dict__, "has_motion": motion})

@@ -62,8 +62,10 @@ did not see still belongs to one. Empty tiles get one in-focus static partition.
 
 Large filters: a partition whose ``3 sigma_u`` exceeds the guard band (16 grid px) is
 reprojected onto a grid of spacing ``s`` (the smallest power of two <= tile that fits) and
-filtered there; composite reads it bilinearly. On such grids reproject gathers one hashed
-pixel per ``min(s, 4)^2`` block (``subsample``; <= 0.15 dB, 3-4x faster). Samples are
+filtered there; composite reads it bilinearly. On such grids reproject gathers one pixel
+per ``min(s, b)^2`` block, the pixel picked per block row by a hash (``subsample=b``,
+default 8, ``False`` = 1: every pixel; at 512x512 8 spp within 0.2 dB of every pixel, 3-4x
+faster; b = 4 -> 8 moved no scene by more than 0.11 dB). Samples are
 gathered from at most ``reach`` (96) px outside a tile: wider blurs are truncated and
 renormalised. Compositing divides by the accumulated opacity where nothing covers the back
 and falls back to the pixel's mean where nothing covers at all.
@@ -80,7 +82,7 @@ from .filter_mip import FilterMip
 from .filter_rotated import FilterRotated
 from .filter_sheared import FilterSheared
 from .partition_setup import PartitionSetup
-from .reference import NCH, NPAR, NSTAT, Layout, bucket_params, mip_levels
+from .reference import NCH, NPAR, NSTAT, Layout, bucket_params, mip_levels, subsample_cap
 from .reproject import Reproject
 from .tile_stats import TileStats
 
@@ -102,7 +104,7 @@ class LayeredPipeline(Pipeline):
                  max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
                  splat: str = "nearest", seed: int = 0, has_motion: bool | None = None,
                  recursions: int = 3, specialize: bool = True, reach: int = 96,
-                 subsample: bool = True):
+                 subsample: int | bool = True):
         super().__init__(context, info)
         if mode not in MODES:
             raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
@@ -129,6 +131,7 @@ class LayeredPipeline(Pipeline):
         if not 1 <= int(recursions) <= 4:
             raise ValueError(f"recursions: must be in [1, 4], got {recursions}")
         self.recursions = int(recursions)
+        self.subsample = subsample_cap(subsample)
         if not bucket_coc > 0:
             raise ValueError(f"bucket_coc: must be > 0, got {bucket_coc}")
         self.mode, self.filter, self.splat = mode, filter, splat
@@ -159,7 +162,6 @@ class LayeredPipeline(Pipeline):
             return
         self.stats_pass = TileStats(context, self.lay, self._local("tile_stats"))
         self.setup = PartitionSetup(context, self.lay, self._local("partition_setup"))
-        self.subsample = bool(subsample)
         self.reproject = Reproject(context, self.lay, splat == "bilinear",
                                    self._local("reproject"), self.subsample)
         if filter == "sheared":
@@ -213,7 +215,7 @@ class LayeredPipeline(Pipeline):
                 "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
                 "guard": self.lay.gmax, "reach": self.lay.reach_max,
                 "bucket_coc": self.bucket_coc, "splat": self.splat,
-                "subsample": getattr(self, "subsample", None),
+                "subsample": self.subsample,
                 "recursions": self.recursions if self.filter == "sheared" else None,
                 "device_bytes": sum(self.buffer_sizes(self.info.width,
                                                       self.info.height).values()),

@@ -252,8 +252,23 @@ def block_hash(cx, cy, sub):
     return h
 
 
+#: ``subsample=True``: a slot on a grid of spacing s reads one pixel per min(s, 8)^2 block
+SUBSAMPLE_DEFAULT = 8
+
+
+def subsample_cap(subsample: int | bool) -> int:
+    """The largest block side read as one pixel: ``True`` -> 8, ``False`` -> 1 (every pixel),
+    an int >= 1 as given."""
+    if isinstance(subsample, (bool, np.bool_)):
+        return SUBSAMPLE_DEFAULT if subsample else 1
+    if not isinstance(subsample, (int, np.integer)) or not 1 <= subsample <= 64:
+        raise ValueError(f"subsample: must be true, false or an int in [1, 64], "
+                         f"got {subsample!r}")
+    return int(subsample)
+
+
 def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False,
-              subsample: bool = True):
+              subsample: int | bool = True):
     """(tiles, MAXP, NCH, DMAX * DMAX): own colour/weight and behind weight per slot."""
     color, pos, depth = fields["color"], fields["position"], fields["depth"]
     lens, time = fields["lens"], fields["time"]
@@ -273,7 +288,7 @@ def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False,
                   slice(max(0, x0 - r), min(w, x0 + lay.tile + r)))
             b = bk[sl].ravel()
             keep = b >= p[P_LO]
-            sub = min(int(p[P_SCALE]), 4) if subsample else 1
+            sub = min(int(p[P_SCALE]), subsample_cap(subsample))
             if sub > 1:  # one pixel per sub x sub block (kernels/reproject.cl)
                 ys, xs = np.mgrid[sl]
                 hh = block_hash(0, ys // sub, sub)  # per block row: the reads stream
@@ -559,7 +574,7 @@ def reconstruct(buf, tile: int = 32, stats_stride: int = 1, merge_threshold: flo
                 sigma_x: float = 0.33, max_partitions: int = 4, guard: int = 16,
                 filter: str = "sheared", recursions: int = 3, seed: int = 0,
                 bucket_coc: float = 0.5, splat: str = "nearest", nbuckets: int = 32,
-                subsample: bool = True):
+                subsample: int | bool = True):
     """The whole method in NumPy (slow: for small frames). Parameters as the pipeline's."""
     info = buf.inspect()
     sig = np.sqrt(info.max_abs_coc ** 2 / 4 + info.max_abs_motion ** 2 / 12 + sigma_x ** 2)

@@ -6,7 +6,7 @@ import pyopencl as cl
 
 from ..pipeline import DeviceSamples, LocalSize
 from .passes import layered_kernel
-from .reference import Layout
+from .reference import Layout, subsample_cap
 
 
 class Reproject:
@@ -16,13 +16,13 @@ class Reproject:
     name = "reproject"
 
     def __init__(self, context: cl.Context, lay: Layout, bilinear: bool = False,
-                 local: LocalSize | None = None, subsample: bool = True):
+                 local: LocalSize | None = None, subsample: int | bool = True):
         self.lay = lay
         wg = local.x if local and local.x else 1
         self.local = LocalSize(wg, 1)
         self.kernel = layered_kernel(context, "reproject", "reproject", lay, self.local,
                                      SPLAT_BILINEAR=bool(bilinear),
-                                     SUBSAMPLE=bool(subsample))
+                                     SUBSAMPLE=subsample_cap(subsample))
 
     def __call__(self, queue, samples: DeviceSamples, kabc, params: cl.Buffer,
                  grids: cl.Buffer, wait_for=None) -> cl.Event:
