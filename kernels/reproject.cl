@@ -81,12 +81,14 @@ inline void splat(__global float *grid, int dim, int gx, int gy, float wt, float
 typedef float8 floatv;
 typedef int8 intv;
 #define VLOAD vload8
+#define CONVERT_INTV convert_int8
 #define VSTORE vstore8
 #define VLOAD2 vload16
 #elif VW == 4
 typedef float4 floatv;
 typedef int4 intv;
 #define VLOAD vload4
+#define CONVERT_INTV convert_int4
 #define VSTORE vstore4
 #define VLOAD2 vload8
 #endif
@@ -184,6 +186,32 @@ void reproject(__global const float *color, __global const float *position,
                 float gxa[VW], gya[VW], bka[VW];
                 reproject_lanes(base + i0, position, depth, lens, time, ka, kb, kc, A, bm, x0,
                                 y0, inv_s, g, gxa, gya, bka);
+#if !SPLAT_BILINEAR && VW > 1
+                /* nearest: grid index (-1: dropped) and own flag in vectors, so the scalar
+                 * loop only adds (the same cells and order as the per-sample path below) */
+                const floatv gxv = VLOAD(0, gxa), gyv = VLOAD(0, gya), bv = VLOAD(0, bka);
+                const intv ok = isgreaterequal(bv, (floatv)(lo)) & isgreaterequal(gxv, 0.0f)
+                                & isgreaterequal(gyv, 0.0f) & isless(gxv, (floatv)(dim))
+                                & isless(gyv, (floatv)(dim));
+                int ia[VW], oa[VW];
+                VSTORE(select((intv)(-1), CONVERT_INTV(gyv) * dim + CONVERT_INTV(gxv), ok), 0,
+                       ia);
+                VSTORE(islessequal(bv, (floatv)(hi)), 0, oa);
+                for (int j = 0; j < VW; ++j) {
+                    if (ia[j] < 0)
+                        continue;
+                    __global float *cell = grid + ia[j];
+                    if (oa[j]) {
+                        const float3 c = vload3(base + i0 + j, color);
+                        GRID_ADD(cell, c.x);
+                        GRID_ADD(cell + DMAX * DMAX, c.y);
+                        GRID_ADD(cell + 2 * DMAX * DMAX, c.z);
+                        GRID_ADD(cell + 3 * DMAX * DMAX, 1.0f);
+                    } else {
+                        GRID_ADD(cell + 4 * DMAX * DMAX, 1.0f);
+                    }
+                }
+#else
                 for (int j = 0; j < VW; ++j) {
                     const int b = (int)bka[j];
                     if (b < lo)
@@ -208,6 +236,7 @@ void reproject(__global const float *color, __global const float *position,
                     splat(grid, dim, (int)gxf, (int)gyf, 1.0f, c, own);
 #endif
                 }
+#endif
             }
         }
     }
