@@ -82,39 +82,51 @@ __kernel void filter_mip_build(__global const float *params, __global const floa
     }
 }
 
-/* Bilinear lookup of level l at grid coordinate (x, y); texels outside read 0. */
-inline void mip_bilinear(__global const float *g0, __global const float *py, int dim, int l,
-                         float x, float y, float wt, float *acc)
+/* One pyramid level as the probes read it: plane pointer, channel stride, side, scale. */
+typedef struct {
+    __global const float *b;
+    int plane, side;
+    float sc;
+} mip_level;
+
+inline mip_level mip_level_of(__global const float *g0, __global const float *py, int dim,
+                              int l)
 {
-    const float sc = (float)(1 << l);
-    const float lx = (x - 0.5f * (sc - 1.0f)) / sc, ly = (y - 0.5f * (sc - 1.0f)) / sc;
-    const int side = level_side(dim, l);
+    mip_level m;
+    m.b = l == 0 ? g0 : py + level_offset(dim, l);
+    m.plane = l == 0 ? DMAX * DMAX : PYR_PLANE;
+    m.side = level_side(dim, l);
+    m.sc = (float)(1 << l);
+    return m;
+}
+
+/* Bilinear lookup of a level at grid coordinate (x, y), weight wt; texels outside read 0. */
+inline void mip_bilinear(mip_level m, float x, float y, float wt, float *acc)
+{
+    const float lx = (x - 0.5f * (m.sc - 1.0f)) / m.sc, ly = (y - 0.5f * (m.sc - 1.0f)) / m.sc;
+    const int side = m.side;
     const float fx = floor(lx), fy = floor(ly);
     const int ix = (int)fx, iy = (int)fy;
     if (ix < -1 || iy < -1 || ix >= side || iy >= side)
         return;
-    __global const float *b = l == 0 ? g0 : py + level_offset(dim, l);
-    const int plane = l == 0 ? DMAX * DMAX : PYR_PLANE;
     const float ax = lx - fx, ay = ly - fy;
     const float w[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay, ax * ay};
+    __global const float *b = m.b + iy * side + ix;
+    if (ix >= 0 && iy >= 0 && ix + 1 < side && iy + 1 < side) {
+        /* interior: all four texels (zero weights add zero, as the skipped taps below) */
+        for (int c = 0; c < NCH; ++c) {
+            __global const float *q = b + c * m.plane;
+            acc[c] += wt * (w[0] * q[0] + w[1] * q[1] + w[2] * q[side] + w[3] * q[side + 1]);
+        }
+        return;
+    }
     for (int q = 0; q < 4; ++q) {
         const int tx = ix + (q & 1), ty = iy + (q >> 1);
         if (tx < 0 || ty < 0 || tx >= side || ty >= side || w[q] == 0.0f)
             continue;
         for (int c = 0; c < NCH; ++c)
-            acc[c] += wt * w[q] * b[c * plane + ty * side + tx];
+            acc[c] += wt * w[q] * m.b[c * m.plane + ty * side + tx];
     }
-}
-
-inline void mip_trilinear(__global const float *g0, __global const float *py, int dim,
-                          float lod, float x, float y, float *acc)
-{
-    lod = clamp(lod, 0.0f, (float)(NLEV - 1));
-    const int l = min((int)lod, NLEV - 2 < 0 ? 0 : NLEV - 2);
-    const float f = NLEV > 1 ? lod - (float)l : 0.0f;
-    mip_bilinear(g0, py, dim, l, x, y, 1.0f - f, acc);
-    if (f > 0.0f)
-        mip_bilinear(g0, py, dim, l + 1, x, y, f, acc);
 }
 
 __kernel void filter_mip_sample(__global const float *params, __global const float *grids,
@@ -135,18 +147,25 @@ __kernel void filter_mip_sample(__global const float *params, __global const flo
     const float tsv = (MIP_ALPHA - MIP_D) / MIP_ALPHA * sv;
     const int n = clamp((int)ceil(tsu / fmax(tsv, 1e-3f)), 1, MAX_ANISO);
     const float minor = fmax(tsv, tsu / MAX_ANISO);
-    const float lod = log2(fmax(MIP_ALPHA * minor, 1.0f));
     const float spread = sqrt(fmax(3.0f * (tsu * tsu - minor * minor), 0.0f));
-    const float2 c0 = (float2)(i + g, j + g);
+    /* trilinear: levels l and l + 1 with weights 1 - f and f, the same for every probe */
+    const float lod = clamp(log2(fmax(MIP_ALPHA * minor, 1.0f)), 0.0f, (float)(NLEV - 1));
+    const int l = min((int)lod, NLEV - 2 < 0 ? 0 : NLEV - 2);
+    const float f = NLEV > 1 ? lod - (float)l : 0.0f;
     __global const float *g0 = grids + (size_t)slot * NCH * DMAX * DMAX;
     __global const float *py = pyr + (size_t)slot * NCH * PYR_PLANE;
+    const mip_level m0 = mip_level_of(g0, py, dim, l);
+    const mip_level m1 = mip_level_of(g0, py, dim, f > 0.0f ? l + 1 : l);
+    const float2 c0 = (float2)(i + g, j + g);
     float acc[NCH] = {0.0f};
     const float2 offs[4] = {MIP_D * su * eu, -MIP_D * su * eu, MIP_D * sv * ev, -MIP_D * sv * ev};
     for (int t = 0; t < 4; ++t) {
         for (int m = 0; m < n; ++m) {
             const float along = n > 1 ? spread * (2.0f * (m + 0.5f) / n - 1.0f) : 0.0f;
             const float2 q = c0 + offs[t] + along * eu;
-            mip_trilinear(g0, py, dim, lod, q.x, q.y, acc);
+            mip_bilinear(m0, q.x, q.y, 1.0f - f, acc);
+            if (f > 0.0f)
+                mip_bilinear(m1, q.x, q.y, f, acc);
         }
     }
     __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);

@@ -141,6 +141,36 @@ def test_filter_mip_matches_reference(device, rng):
                  rtol=2e-4, atol=2e-4, what="mip")
 
 
+@pytest.mark.parametrize("theta", [0.0, 0.6, 2.2])
+def test_filter_mip_where_probes_leave_the_grid(device, rng, theta):
+    """Long, thin footprints on a thin guard band put probes past the grid's edges and
+    corners, where the kernel's four-texel fast path gives way to the texel-by-texel one."""
+    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
+    params = np.zeros((2, lay.maxp, ref.NPAR), np.float32)
+    for t, (scale, guard, su, sv) in enumerate(((1, 2, 9.0, 0.6), (2, 3, 14.0, 3.0))):
+        p = params[t, 0]
+        p[[ref.P_SU, ref.P_SV, ref.P_COS, ref.P_SIN, ref.P_SCALE, ref.P_GUARD]] = \
+            [su, sv, np.cos(theta), np.sin(theta), scale, guard]
+        p[ref.P_DIM] = lay.tile // scale + 2 * guard
+    grids = np.zeros(params.shape[:2] + (ref.NCH, lay.dmax ** 2), np.float32)
+    for t in range(2):
+        dim = int(params[t, 0, ref.P_DIM])
+        grids[t, 0, :, :dim * dim] = rng.random((ref.NCH, dim * dim))
+    q = device.queue
+    nslots = params.shape[0] * params.shape[1]
+    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
+    filtered = empty(q, fshape)
+    fm = FilterMip(device.context, lay)
+    pyr = empty(q, (nslots, ref.NCH, fm.plane))
+    d_params, d_grids = to_device(q, params), to_device(q, grids)
+    ev = fm(q, d_params, d_grids, pyr, filtered, nslots)
+    got = read(q, filtered, fshape, [ev])
+    want = ref.filter_mip(params.astype(np.float64), grids.astype(np.float64), lay)
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
+                 rtol=2e-4, atol=2e-4, what="mip at the edges")
+
+
 def test_mip_pyramid_keeps_the_mean():
     planes = np.random.default_rng(3).uniform(size=(ref.NCH, 16, 16))
     levels = ref.mip_pyramid(planes)
