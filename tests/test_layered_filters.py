@@ -48,6 +48,26 @@ def test_filter_sheared_matches_reference(device, rng):
                  rtol=1e-4, atol=1e-4, what="sheared y")
 
 
+def crafted_slots(rng, lay, fields, slots):
+    """Params with slot 0 of tile t set from ``slots[t]`` (values for ``fields``, plus scale
+    and guard last), its grid of random values; every other slot empty."""
+    params = np.zeros((len(slots), lay.maxp, ref.NPAR), np.float32)
+    grids = np.zeros(params.shape[:2] + (ref.NCH, lay.dmax ** 2), np.float32)
+    for t, values in enumerate(slots):
+        p = params[t, 0]
+        p[list(fields) + [ref.P_SCALE, ref.P_GUARD]] = values
+        dim = lay.tile // int(p[ref.P_SCALE]) + 2 * int(p[ref.P_GUARD])
+        p[ref.P_DIM] = dim
+        grids[t, 0, :, :dim * dim] = rng.random((ref.NCH, dim * dim))
+    return params, grids
+
+
+def assert_filtered_close(got, want, params, lay, tol, what):
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
+                 rtol=tol, atol=tol, what=what)
+
+
 @pytest.mark.parametrize("axis", [0, 1])
 @pytest.mark.parametrize("beta", [-2.7, 0.4, 3.1])
 def test_filter_sheared_y_where_shear_leaves_the_grid(device, rng, axis, beta):
@@ -55,16 +75,8 @@ def test_filter_sheared_y_where_shear_leaves_the_grid(device, rng, axis, beta):
     kernel's float4 lanes fall back to lane-by-lane taps; the result must still be the
     reference's (taps outside the grid dropped)."""
     lay = LAY
-    params = np.zeros((2, lay.maxp, ref.NPAR), np.float32)
-    for t, (scale, guard) in enumerate(((1, 3), (2, 2))):
-        p = params[t, 0]
-        p[[ref.P_SHV, ref.P_BETA, ref.P_SCALE, ref.P_GUARD, ref.P_AXIS]] = \
-            [2.3, beta, scale, guard, axis]
-        p[ref.P_DIM] = lay.tile // scale + 2 * guard
-    grids = np.zeros(params.shape[:2] + (ref.NCH, lay.dmax ** 2), np.float32)
-    for t in range(2):
-        dim = int(params[t, 0, ref.P_DIM])
-        grids[t, 0, :, :dim * dim] = rng.random((ref.NCH, dim * dim))
+    params, grids = crafted_slots(rng, lay, (ref.P_SHV, ref.P_BETA, ref.P_AXIS),
+                                  [(2.3, beta, axis, 1, 3), (2.3, beta, axis, 2, 2)])
     q = device.queue
     fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
     filtered = empty(q, fshape)
@@ -75,9 +87,7 @@ def test_filter_sheared_y_where_shear_leaves_the_grid(device, rng, axis, beta):
     ev = cl.enqueue_nd_range_kernel(q, fs.ky, gsz, loc)
     got = read(q, filtered, fshape, [ev])
     want = ref.filter_sheared_y(params.astype(np.float64), grids.astype(np.float64), lay)
-    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
-                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
-                 rtol=1e-4, atol=1e-4, what="sheared y at the edges")
+    assert_filtered_close(got, want, params, lay, 1e-4, "sheared y at the edges")
 
 
 def test_filter_rotated_matches_reference(device, rng):
@@ -124,21 +134,25 @@ def test_sheared_and_rotated_agree_on_an_impulse(coc, motion):
         assert_close(cov, [a, xy, b], rtol=0.15, atol=0.15, what="impulse covariance")
 
 
-def test_filter_mip_matches_reference(device, rng):
-    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
-    params, grids = inputs(rng, lay)
+def run_mip(device, lay, params, grids):
+    """filter_mip (build and sample) on the device: the filtered slots."""
     q = device.queue
     nslots = params.shape[0] * params.shape[1]
     fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
     filtered = empty(q, fshape)
     fm = FilterMip(device.context, lay)
     pyr = empty(q, (nslots, ref.NCH, fm.plane))
-    ev = fm(q, to_device(q, params), to_device(q, grids), pyr, filtered, nslots)
-    got = read(q, filtered, fshape, [ev])
+    d_params, d_grids = to_device(q, params), to_device(q, grids)  # alive until read
+    ev = fm(q, d_params, d_grids, pyr, filtered, nslots)
+    return read(q, filtered, fshape, [ev])
+
+
+def test_filter_mip_matches_reference(device, rng):
+    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
+    params, grids = inputs(rng, lay)
+    got = run_mip(device, lay, params, grids)
     want = ref.filter_mip(params.astype(np.float64), grids, lay)
-    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
-                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
-                 rtol=2e-4, atol=2e-4, what="mip")
+    assert_filtered_close(got, want, params, lay, 2e-4, "mip")
 
 
 @pytest.mark.parametrize("theta", [0.0, 0.6, 2.2])
@@ -146,29 +160,12 @@ def test_filter_mip_where_probes_leave_the_grid(device, rng, theta):
     """Long, thin footprints on a thin guard band put probes past the grid's edges and
     corners, where the kernel's four-texel fast path gives way to the texel-by-texel one."""
     lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
-    params = np.zeros((2, lay.maxp, ref.NPAR), np.float32)
-    for t, (scale, guard, su, sv) in enumerate(((1, 2, 9.0, 0.6), (2, 3, 14.0, 3.0))):
-        p = params[t, 0]
-        p[[ref.P_SU, ref.P_SV, ref.P_COS, ref.P_SIN, ref.P_SCALE, ref.P_GUARD]] = \
-            [su, sv, np.cos(theta), np.sin(theta), scale, guard]
-        p[ref.P_DIM] = lay.tile // scale + 2 * guard
-    grids = np.zeros(params.shape[:2] + (ref.NCH, lay.dmax ** 2), np.float32)
-    for t in range(2):
-        dim = int(params[t, 0, ref.P_DIM])
-        grids[t, 0, :, :dim * dim] = rng.random((ref.NCH, dim * dim))
-    q = device.queue
-    nslots = params.shape[0] * params.shape[1]
-    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
-    filtered = empty(q, fshape)
-    fm = FilterMip(device.context, lay)
-    pyr = empty(q, (nslots, ref.NCH, fm.plane))
-    d_params, d_grids = to_device(q, params), to_device(q, grids)
-    ev = fm(q, d_params, d_grids, pyr, filtered, nslots)
-    got = read(q, filtered, fshape, [ev])
+    c, s = np.cos(theta), np.sin(theta)
+    params, grids = crafted_slots(rng, lay, (ref.P_SU, ref.P_SV, ref.P_COS, ref.P_SIN),
+                                  [(9.0, 0.6, c, s, 1, 2), (14.0, 3.0, c, s, 2, 3)])
+    got = run_mip(device, lay, params, grids)
     want = ref.filter_mip(params.astype(np.float64), grids.astype(np.float64), lay)
-    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
-                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
-                 rtol=2e-4, atol=2e-4, what="mip at the edges")
+    assert_filtered_close(got, want, params, lay, 2e-4, "mip at the edges")
 
 
 def test_mip_pyramid_keeps_the_mean():
