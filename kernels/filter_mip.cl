@@ -1,7 +1,8 @@
 /* filter_mip.cl: the screen-space filter from a MIP pyramid per partition grid and four
  * anisotropic lookups (Hasselgren et al. 2015, section 6.1). OpenCL has no anisotropic
  * sampler, so each lookup is emulated as hardware does it: trilinear probes along the major
- * axis of its footprint. Buffers throughout (no image objects).
+ * axis of its footprint. This file reads buffers; kernels/filter_mip_image.cl reads the same
+ * pyramid through image objects and the linear sampler (filter_mip.h: what both share).
  *
  * filter_mip_build: one work-group of WG_X items per slot (1D range tiles * MAXP * WG_X);
  *   level l >= 1 of the pyramid (side D_l = ceil(D_{l-1} / 2)) is the mean of 2x2 texels of
@@ -18,7 +19,7 @@
  *   k 2^l + (2^l - 1) / 2 in grid coordinates. Unnormalised sums (composite divides).
  * Compile-time: TILE, MAXP, GMAX, NLEV (levels incl. 0), PYR_PLANE. Tunables: WG_X, WG_Y.
  */
-#include "layered.h"
+#include "filter_mip.h"
 
 #ifndef WG_X
 #define WG_X 8
@@ -26,27 +27,6 @@
 #ifndef WG_Y
 #define WG_Y 8
 #endif
-#ifndef NLEV
-#define NLEV 7
-#endif
-#ifndef PYR_PLANE
-#define PYR_PLANE 1
-#endif
-#define MIP_ALPHA 2.24f
-#define MIP_D 0.33f
-#define MAX_ANISO 16
-
-inline int level_side(int dim, int l) { return (dim + (1 << l) - 1) >> l; }
-
-inline int level_offset(int dim, int l)  /* offset of level l >= 1 within a channel plane */
-{
-    int off = 0;
-    for (int m = 1; m < l; ++m) {
-        const int d = level_side(dim, m);
-        off += d * d;
-    }
-    return off;
-}
 
 __kernel void filter_mip_build(__global const float *params, __global const float *grids,
                                __global float *pyr)
@@ -133,42 +113,25 @@ __kernel void filter_mip_sample(__global const float *params, __global const flo
                                 __global const float *pyr, __global float *filtered)
 {
     const int i = get_global_id(0) - 1, j = get_global_id(1) - 1, slot = get_global_id(2);
-    __global const float *p = params + (size_t)slot * NPAR;
+    __global const float *p = mip_pixel_params(params, slot, i, j);
+    if (!p)
+        return;
     const int dim = (int)p[P_DIM];
-    if (dim == 0)
-        return;
-    const int side = TILE / (int)p[P_SCALE];
-    if (i > side || j > side)
-        return;
-    const float g = p[P_GUARD], inv_s = 1.0f / p[P_SCALE];
-    const float su = p[P_SU] * inv_s, sv = p[P_SV] * inv_s;
-    const float2 eu = (float2)(p[P_COS], p[P_SIN]), ev = (float2)(-p[P_SIN], p[P_COS]);
-    const float tsu = (MIP_ALPHA - MIP_D) / MIP_ALPHA * su;  /* tap's own sigma */
-    const float tsv = (MIP_ALPHA - MIP_D) / MIP_ALPHA * sv;
-    const int n = clamp((int)ceil(tsu / fmax(tsv, 1e-3f)), 1, MAX_ANISO);
-    const float minor = fmax(tsv, tsu / MAX_ANISO);
-    const float spread = sqrt(fmax(3.0f * (tsu * tsu - minor * minor), 0.0f));
-    /* trilinear: levels l and l + 1 with weights 1 - f and f, the same for every probe */
-    const float lod = clamp(log2(fmax(MIP_ALPHA * minor, 1.0f)), 0.0f, (float)(NLEV - 1));
-    const int l = min((int)lod, NLEV - 2 < 0 ? 0 : NLEV - 2);
-    const float f = NLEV > 1 ? lod - (float)l : 0.0f;
+    const mip_footprint fp = mip_footprint_of(p, i, j);
     __global const float *g0 = grids + (size_t)slot * NCH * DMAX * DMAX;
     __global const float *py = pyr + (size_t)slot * NCH * PYR_PLANE;
-    const mip_level m0 = mip_level_of(g0, py, dim, l);
-    const mip_level m1 = mip_level_of(g0, py, dim, f > 0.0f ? l + 1 : l);
-    const float2 c0 = (float2)(i + g, j + g);
+    const mip_level m0 = mip_level_of(g0, py, dim, fp.l);
+    const mip_level m1 = mip_level_of(g0, py, dim, fp.f > 0.0f ? fp.l + 1 : fp.l);
     float acc[NCH] = {0.0f};
-    const float2 offs[4] = {MIP_D * su * eu, -MIP_D * su * eu, MIP_D * sv * ev, -MIP_D * sv * ev};
     for (int t = 0; t < 4; ++t) {
-        for (int m = 0; m < n; ++m) {
-            const float along = n > 1 ? spread * (2.0f * (m + 0.5f) / n - 1.0f) : 0.0f;
-            const float2 q = c0 + offs[t] + along * eu;
-            mip_bilinear(m0, q.x, q.y, 1.0f - f, acc);
-            if (f > 0.0f)
-                mip_bilinear(m1, q.x, q.y, f, acc);
+        for (int m = 0; m < fp.n; ++m) {
+            const float2 q = mip_probe(&fp, t, m);
+            mip_bilinear(m0, q.x, q.y, 1.0f - fp.f, acc);
+            if (fp.f > 0.0f)
+                mip_bilinear(m1, q.x, q.y, fp.f, acc);
         }
     }
     __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);
     for (int c = 0; c < NCH; ++c)
-        out[c * FT * FT] = acc[c] / n;
+        out[c * FT * FT] = acc[c] / fp.n;
 }

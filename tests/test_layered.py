@@ -33,6 +33,20 @@ def test_pipeline_matches_numpy_chain(device, rng, knobs):
     assert_close(got, want, rtol=2e-3, atol=2e-3, what=f"layered {knobs}")
 
 
+def test_mip_images_whole_method(device, rng):
+    """filter="mip" through the image atlas (the GPU default) matches the NumPy chain, and
+    the plan says which variant ran."""
+    if not device.info.image_support:
+        pytest.skip("device without image support")
+    buf = frame(rng, h=21, w=19)
+    res = clrecon.run(buf, "layered", device, tile=16, filter="mip", mip_images=True)
+    assert res.method["mip_images"] is True and "filter_mip_pack" in res.pass_ms
+    want = ref.reconstruct(buf, tile=16, filter="mip", stats_stride=3 * buf.spp)
+    assert_close(res.image, want, rtol=2e-3, atol=2e-3, what="layered mip images")
+    res = clrecon.run(buf, "layered", device, tile=16, filter="mip", mip_images=False)
+    assert res.method["mip_images"] is False and "filter_mip_pack" not in res.pass_ms
+
+
 def _plane_scene(depth: float, focus: float, lens: float) -> Scene:
     mat = Material((0.9, 0.85, 0.8), (0.1, 0.12, 0.2), "checker", 0.15)
     return Scene("plane", (Plane((0.0, 0.0, depth), mat),), focus_depth=focus,
@@ -211,7 +225,8 @@ def test_knob_errors(device, rng):
                         (dict(tile=24), "tile"), (dict(stats_stride=0), "stats_stride"),
                         (dict(splat="cubic"), "splat"), (dict(max_partitions=0), "max_part"),
                         (dict(subsample=0), "subsample"), (dict(subsample=2.5), "subsample"),
-                        (dict(subsample="lots"), "subsample")):
+                        (dict(subsample="lots"), "subsample"),
+                        (dict(mip_images=True), "mip_images")):
         with pytest.raises(ValueError, match=word):
             clrecon.reconstruct(buf, "layered", device, **knobs)
     with pytest.raises(TypeError, match="unknown knobs"):

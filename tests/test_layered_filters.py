@@ -134,16 +134,18 @@ def test_sheared_and_rotated_agree_on_an_impulse(coc, motion):
         assert_close(cov, [a, xy, b], rtol=0.15, atol=0.15, what="impulse covariance")
 
 
-def run_mip(device, lay, params, grids):
-    """filter_mip (build and sample) on the device: the filtered slots."""
+def run_mip(device, lay, params, grids, images=False):
+    """filter_mip (build and sample; with ``images`` through the atlas and the linear
+    sampler) on the device: the filtered slots."""
     q = device.queue
     nslots = params.shape[0] * params.shape[1]
     fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
     filtered = empty(q, fshape)
-    fm = FilterMip(device.context, lay)
+    fm = FilterMip(device.context, lay, images=images, nslots=nslots)
     pyr = empty(q, (nslots, ref.NCH, fm.plane))
     d_params, d_grids = to_device(q, params), to_device(q, grids)  # alive until read
-    ev = fm(q, d_params, d_grids, pyr, filtered, nslots)
+    atlas = fm.atlas_images(device.context, q) if images else None
+    ev = fm(q, d_params, d_grids, pyr, filtered, nslots, None, atlas)
     return read(q, filtered, fshape, [ev])
 
 
@@ -166,6 +168,42 @@ def test_filter_mip_where_probes_leave_the_grid(device, rng, theta):
     got = run_mip(device, lay, params, grids)
     want = ref.filter_mip(params.astype(np.float64), grids.astype(np.float64), lay)
     assert_filtered_close(got, want, params, lay, 2e-4, "mip at the edges")
+
+
+#: the image variant interpolates with the sampler's own fraction: float on PoCL, a few
+#: bits on GPUs (8 on NVIDIA: 1/256 of a texel step)
+IMAGE_TOL = 4e-3
+
+
+@pytest.mark.parametrize("edges", [False, True], ids=["frame", "edges"])
+def test_filter_mip_images_match_reference(device, rng, edges):
+    """The atlas and linear-sampler variant gives the reference's filtered slots, inside
+    the grid and where probes leave it (the zero ring)."""
+    if not device.info.image_support:
+        pytest.skip("device without image support")
+    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
+    if edges:
+        params, grids = crafted_slots(
+            rng, lay, (ref.P_SU, ref.P_SV, ref.P_COS, ref.P_SIN),
+            [(9.0, 0.6, 1.0, 0.0, 1, 2), (14.0, 3.0, 0.8, 0.6, 2, 3), (3.0, 2.0, 0.6, 0.8, 1, 4)])
+    else:
+        params, grids = inputs(rng, lay)
+    got = run_mip(device, lay, params, grids, images=True)
+    want = ref.filter_mip(params.astype(np.float64), grids.astype(np.float64), lay)
+    scale = max(np.abs(want).max(), 1e-6)
+    assert_filtered_close(got / scale, want / scale, params, lay, IMAGE_TOL, "mip images")
+
+
+def test_mip_atlas_layout():
+    """Level boxes of a DMAX grid fit their slot's region, regions tile the atlas."""
+    for dmax in (6, 20, 64, 96):
+        nlev, _ = ref.mip_levels(dmax)
+        a = ref.mip_atlas(dmax, nlev, 37, 512)
+        boxes = [-(-dmax // (1 << lv)) + 2 for lv in range(nlev)]
+        assert a["rw"] >= boxes[0] + (boxes[1] if nlev > 1 else 0) + (boxes[2] if nlev > 2 else 0)
+        assert a["rh"] >= boxes[0] and a["rh"] >= sum(boxes[2:])
+        assert a["per_row"] * a["rw"] <= 512 or a["per_row"] == 1
+        assert a["per_row"] * (a["height"] // a["rh"]) >= 37
 
 
 def test_mip_pyramid_keeps_the_mean():

@@ -104,7 +104,7 @@ class LayeredPipeline(Pipeline):
                  max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
                  splat: str = "nearest", seed: int = 0, has_motion: bool | None = None,
                  recursions: int = 3, specialize: bool = True, reach: int = 96,
-                 subsample: int | bool = True):
+                 subsample: int | bool = True, mip_images: bool | None = None):
         super().__init__(context, info)
         if mode not in MODES:
             raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
@@ -132,6 +132,8 @@ class LayeredPipeline(Pipeline):
             raise ValueError(f"recursions: must be in [1, 4], got {recursions}")
         self.recursions = int(recursions)
         self.subsample = subsample_cap(subsample)
+        if mip_images is not None and filter != "mip":
+            raise ValueError(f"mip_images: applies to filter='mip' only, not {filter!r}")
         if not bucket_coc > 0:
             raise ValueError(f"bucket_coc: must be > 0, got {bucket_coc}")
         self.mode, self.filter, self.splat = mode, filter, splat
@@ -168,11 +170,35 @@ class LayeredPipeline(Pipeline):
             self.filt = FilterSheared(context, self.lay, self.recursions,
                                       self._local("filter_sheared"))
         elif filter == "mip":
-            self.filt = FilterMip(context, self.lay, self._local("filter_mip"))
+            ntx, nty = self.lay.tiles(info.width, info.height)
+            nslots = ntx * nty * self.lay.maxp
+            self.mip_images = self._mip_images(mip_images, nslots)
+            self.filt = FilterMip(context, self.lay, self._local("filter_mip"),
+                                  self.mip_images, nslots)
         else:
             self.filt = FilterRotated(context, self.lay, self._local("filter_rotated"))
         self.comp = Composite(context, self.lay, self._local("composite"))
         self._alloc(info.width, info.height)
+
+    def _mip_images(self, want: bool | None, nslots: int) -> bool:
+        """Whether filter_mip reads an image atlas through the linear sampler: asked for, or
+        by default on GPUs with image support whose 2D images hold the atlas (on CPUs the
+        sampler is software, slower than the buffer variant)."""
+        from .reference import mip_atlas, mip_levels
+
+        dev = self.context.devices[0]
+        a = mip_atlas(self.lay.dmax, mip_levels(self.lay.dmax)[0], nslots,
+                      dev.image2d_max_width)
+        fits = a["width"] <= dev.image2d_max_width and a["height"] <= dev.image2d_max_height
+        if want is None:
+            return bool(dev.image_support and dev.type & cl.device_type.GPU and fits)
+        if want and not dev.image_support:
+            raise ValueError("mip_images: the device has no image support")
+        if want and not fits:
+            raise ValueError(f"mip_images: the atlas ({a['width']}x{a['height']}) exceeds the "
+                             f"device's 2D image limit ({dev.image2d_max_width}x"
+                             f"{dev.image2d_max_height})")
+        return bool(want)
 
     def _local(self, pass_name: str) -> LocalSize | None:
         from ..tune.runtime import tuned
@@ -200,12 +226,18 @@ class LayeredPipeline(Pipeline):
             sizes["tmp"] = sizes["grids"]
         if self.filter == "mip":
             sizes["pyramid"] = slots * NCH * mip_levels(lay.dmax)[1] * 4
+            if getattr(self, "mip_images", False):
+                a = self.filt.atlas
+                sizes["atlas"] = a["width"] * a["height"] * (16 + 4)
         return sizes
 
     def _alloc(self, width: int, height: int) -> None:
         rw = cl.mem_flags.READ_WRITE
         self.buffers = {k: cl.Buffer(self.context, rw, v)
-                        for k, v in self.buffer_sizes(width, height).items()}
+                        for k, v in self.buffer_sizes(width, height).items() if k != "atlas"}
+        self.images = None
+        if getattr(self, "mip_images", False):
+            self.images = self.filt.atlas_images(self.context, cl.CommandQueue(self.context))
 
     def describe(self) -> dict:
         return {"method": "layered", "mode": self.mode, "filter": self.filter,
@@ -217,6 +249,7 @@ class LayeredPipeline(Pipeline):
                 "bucket_coc": self.bucket_coc, "splat": self.splat,
                 "subsample": self.subsample,
                 "recursions": self.recursions if self.filter == "sheared" else None,
+                "mip_images": getattr(self, "mip_images", None),
                 "device_bytes": sum(self.buffer_sizes(self.info.width,
                                                       self.info.height).values()),
                 "tuning": self.tuning}
@@ -248,7 +281,7 @@ class LayeredPipeline(Pipeline):
             ev = self.filt(queue, b["params"], b["grids"], b["filtered"], nslots, [ev])
         elif self.filter == "mip":
             ev = self.filt(queue, b["params"], b["grids"], b["pyramid"], b["filtered"], nslots,
-                           [ev])
+                           [ev], self.images)
         else:
             ev = self.filt(queue, b["params"], b["grids"], b["tmp"], b["filtered"], nslots,
                            [ev])

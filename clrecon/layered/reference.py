@@ -464,6 +464,20 @@ def mip_levels(dmax: int) -> tuple[int, int]:
     return nlev, max(plane, 1)
 
 
+def mip_atlas(dmax: int, nlev: int, nslots: int, max_width: int) -> dict:
+    """Layout of the image variant's atlas (kernels/filter_mip_image.cl): every slot a
+    ``rw x rh`` region, ``per_row`` regions side by side; level boxes of side
+    ``level side + 2`` (a zero ring): level 0 at (0, 0), level 1 right of it, level 2 right
+    of level 1, levels 3.. below level 2. ``width x height`` is the whole atlas."""
+    boxes = [-(-dmax // (1 << lv)) + 2 for lv in range(nlev)]
+    rw = sum(boxes[:3])
+    rh = max([boxes[0]] + ([boxes[1]] if nlev > 1 else []) + [sum(boxes[2:])])
+    per_row = max(1, min(nslots, max_width // rw))
+    rows = -(-nslots // per_row)
+    return {"rw": rw, "rh": rh, "per_row": per_row, "width": per_row * rw,
+            "height": rows * rh}
+
+
 def mip_pyramid(planes):
     """Levels 0.. of (NCH, d, d) planes: 2x2 means, missing texels count as 0."""
     levels = [planes]
