@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from conftest import assert_close
 from layered_frames import LAY, empty, fields, frame, kabc, read, to_device
 from test_layered_reproject import params_of
@@ -10,19 +11,23 @@ from clrecon.layered import reference as ref
 from clrecon.layered.composite import Composite
 
 
-def test_composite_matches_reference(device, rng):
+@pytest.mark.parametrize("tile", [16, 2], ids=["float4-lanes", "one-pixel"])
+def test_composite_matches_reference(device, rng, tile):
+    """Four pixels per work-item (tiles >= 4; 19 px wide, so the last quad is partial) and
+    one per work-item (tile 2) give the reference's image."""
+    lay = ref.Layout(**{**LAY.__dict__, "tile": tile})
     buf = frame(rng, h=35, w=19)
-    params = params_of(buf, LAY)
+    params = params_of(buf, lay)
     p64 = params.astype(np.float64)
-    grids = ref.reproject(fields(buf), p64, kabc(buf), LAY)
-    filtered = ref.filter_sheared_y(p64, ref.filter_sheared_x(p64, grids), LAY)
+    grids = ref.reproject(fields(buf), p64, kabc(buf, lay), lay)
+    filtered = ref.filter_sheared_y(p64, ref.filter_sheared_x(p64, grids), lay)
     filtered[0, 0] = 0.0  # a tile whose front layer covers nothing
     q = device.queue
     out = empty(q, (buf.height, buf.width, 3))
-    ev = Composite(device.context, LAY)(q, to_device(q, buf.color), to_device(q, params),
+    ev = Composite(device.context, lay)(q, to_device(q, buf.color), to_device(q, params),
                                         to_device(q, filtered), buf.width, buf.height, out)
     got = read(q, out, (buf.height, buf.width, 3), [ev])
-    want = ref.composite(buf.color, p64, filtered, LAY)
+    want = ref.composite(buf.color, p64, filtered, lay)
     assert_close(got, want, rtol=1e-4, atol=1e-5, what="composite")
 
 

@@ -10,7 +10,8 @@ from .reference import Layout
 
 
 class Composite:
-    """``kernels/composite.cl``: one work-item per pixel."""
+    """``kernels/composite.cl``: one work-item per four pixels of a row (per pixel when the
+    tile is narrower than four)."""
 
     name = "composite"
 
@@ -24,5 +25,6 @@ class Composite:
         ntx, _ = self.lay.tiles(width, height)
         self.kernel.set_args(color, params, filtered, np.int32(width), np.int32(height),
                              np.int32(ntx), out)
-        g, loc = local_for(self.local, (width, height))
+        per = 4 if self.lay.tile >= 4 else 1
+        g, loc = local_for(self.local, (-(-width // per), height))
         return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)
