@@ -68,7 +68,8 @@ inline void splat(__global float *grid, int dim, int gx, int gy, float wt, float
 /* VW consecutive samples of a pixel in one vector: SPP's largest factor among 8 and 4 (CPU
  * compilers map floatVW onto SIMD registers; VW = 1 otherwise). Each lane computes exactly
  * the scalar expression (FP_CONTRACT is off in layered.h), so every width gives the same
- * grids. Writes per lane the grid position and the depth bucket (as float). */
+ * grids. Writes per lane the depth bucket (as float) and the grid position; returns 0 without
+ * reading position, lens and time when every lane is in front of the slot (bucket < lo). */
 #if SPP % 8 == 0
 #define VW 8
 #elif SPP % 4 == 0
@@ -93,20 +94,23 @@ typedef int4 intv;
 #define VLOAD2 vload8
 #endif
 
-inline void reproject_lanes(size_t s0, __global const float *position,
-                            __global const float *depth, __global const float *lens,
-                            __global const float *time,
-                            float ka, float kb, float kc, float A, float2 bm, int x0, int y0,
-                            float inv_s, float g, float *gx, float *gy, float *bk)
+inline int reproject_lanes(size_t s0, __global const float *position,
+                           __global const float *depth, __global const float *lens,
+                           __global const float *time, float ka, float kb, float kc, int lo,
+                           float A, float2 bm, int x0, int y0, float inv_s, float g,
+                           float *gx, float *gy, float *bk)
 {
 #if VW == 1
+    bk[0] = (float)layered_bucket(depth[s0], ka, kb, kc);
+    if (bk[0] < (float)lo)
+        return 0;
     float2 q = vload2(s0, position) - A * vload2(s0, lens);
 #if HAS_MOTION
     q -= (time[s0] - 0.5f) * bm;
 #endif
     gx[0] = (q.x - x0) * inv_s + g;
     gy[0] = (q.y - y0) * inv_s + g;
-    bk[0] = (float)layered_bucket(depth[s0], ka, kb, kc);
+    return 1;
 #else
     const floatv w = VLOAD(0, depth + s0);
     floatv l = ka / w;
@@ -114,7 +118,11 @@ inline void reproject_lanes(size_t s0, __global const float *position,
     l = l - kc;
     l = clamp(floor(l), 0.0f, (float)(NBUCKETS - 2));
     /* misses and NaN: the last bucket, as layered_bucket */
-    VSTORE(select((floatv)(NBUCKETS - 1), l, isless(w, (floatv)(MISS_DEPTH))), 0, bk);
+    const floatv b = select((floatv)(NBUCKETS - 1), l, isless(w, (floatv)(MISS_DEPTH)));
+    VSTORE(b, 0, bk);
+    /* every sample in front of the slot: skip the other fields' reads */
+    if (!any(isgreaterequal(b, (floatv)((float)lo))))
+        return 0;
 #if VW == 8
     const float16 pp = VLOAD2(0, position + 2 * s0), ll = VLOAD2(0, lens + 2 * s0);
 #else
@@ -128,6 +136,7 @@ inline void reproject_lanes(size_t s0, __global const float *position,
 #endif
     VSTORE((qx - (float)x0) * inv_s + g, 0, gx);
     VSTORE((qy - (float)y0) * inv_s + g, 0, gy);
+    return 1;
 #endif
 }
 
@@ -184,8 +193,9 @@ void reproject(__global const float *color, __global const float *position,
             for (int i0 = 0; i0 < SPP; i0 += VW) {
                 /* VW samples at once (SIMD on CPUs), then added one by one */
                 float gxa[VW], gya[VW], bka[VW];
-                reproject_lanes(base + i0, position, depth, lens, time, ka, kb, kc, A, bm, x0,
-                                y0, inv_s, g, gxa, gya, bka);
+                if (!reproject_lanes(base + i0, position, depth, lens, time, ka, kb, kc, lo, A,
+                                     bm, x0, y0, inv_s, g, gxa, gya, bka))
+                    continue;   /* no sample of these lanes at or behind the slot */
 #if !SPLAT_BILINEAR && VW > 1
                 /* nearest: grid index (-1: dropped) and own flag in vectors, so the scalar
                  * loop only adds (the same cells and order as the per-sample path below) */
