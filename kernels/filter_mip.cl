@@ -21,13 +21,6 @@
  */
 #include "filter_mip.h"
 
-#ifndef WG_X
-#define WG_X 8
-#endif
-#ifndef WG_Y
-#define WG_Y 8
-#endif
-
 __kernel void filter_mip_build(__global const float *params, __global const float *grids,
                                __global float *pyr)
 {

@@ -12,6 +12,12 @@
 #ifndef NLEV
 #define NLEV 7
 #endif
+#ifndef WG_X  /* local size of the sample kernels (tunable) */
+#define WG_X 8
+#endif
+#ifndef WG_Y
+#define WG_Y 8
+#endif
 #ifndef PYR_PLANE
 #define PYR_PLANE 1
 #endif

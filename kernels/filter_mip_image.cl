@@ -22,13 +22,6 @@
  */
 #include "filter_mip.h"
 
-#ifndef WG_X
-#define WG_X 8
-#endif
-#ifndef WG_Y
-#define WG_Y 8
-#endif
-
 /* Box of level l within a slot's region (sized for a DMAX grid). */
 inline int2 mip_box(int l)
 {

@@ -34,9 +34,11 @@
 #define SUBSAMPLE 8   /* b_max: largest block side read as one pixel (1: every pixel) */
 #endif
 
-inline uint block_hash(int cx, int cy, int sub)
+/* Hash of block row cy for blocks of side sub: it picks the row and column offset of the
+ * pixel read from every block of that row. */
+inline uint row_hash(int cy, int sub)
 {
-    uint h = ((uint)cx * 0x8da6b343u) ^ ((uint)cy * 0xd8163841u) ^ ((uint)sub * 0xcb1ab31fu);
+    uint h = ((uint)cy * 0xd8163841u) ^ ((uint)sub * 0xcb1ab31fu);
     h ^= h >> 13;
     h *= 0x85ebca6bu;
     h ^= h >> 16;
@@ -179,7 +181,7 @@ void reproject(__global const float *color, __global const float *position,
         /* the block row's pixel row and column offset (one hash per row) */
         int py = cy * sub, ox = 0;
         if (sub > 1) {
-            const uint h = block_hash(0, cy, sub);
+            const uint h = row_hash(cy, sub);
             ox = (int)(h % (uint)sub);
             py += (int)((h >> 16) % (uint)sub);
         }

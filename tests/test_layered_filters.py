@@ -10,7 +10,7 @@ from layered_frames import LAY, empty, fields, frame, kabc, read, to_device
 from test_layered_reproject import params_of
 
 from clrecon.layered import reference as ref
-from clrecon.layered.filter_mip import FilterMip
+from clrecon.layered.filter_mip import FilterMip, atlas_layout
 from clrecon.layered.filter_rotated import FilterRotated
 from clrecon.layered.filter_sheared import FilterSheared
 from clrecon.layered.passes import local_for
@@ -144,11 +144,11 @@ def run_mip(device, lay, params, grids, images=False):
     nslots = params.shape[0] * params.shape[1]
     fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
     filtered = empty(q, fshape)
-    fm = FilterMip(device.context, lay, images=images, nslots=nslots)
+    atlas = atlas_layout(device.context.devices[0], lay, nslots)[0] if images else None
+    fm = FilterMip(device.context, lay, atlas=atlas)
     pyr = empty(q, (nslots, ref.NCH, fm.plane))
     d_params, d_grids = to_device(q, params), to_device(q, grids)  # alive until read
-    atlas = fm.atlas_images(device.context, q) if images else None
-    ev = fm(q, d_params, d_grids, pyr, filtered, nslots, None, atlas)
+    ev = fm(q, d_params, d_grids, pyr, filtered, nslots)
     return read(q, filtered, fshape, [ev])
 
 

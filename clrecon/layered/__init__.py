@@ -78,7 +78,7 @@ import pyopencl as cl
 
 from ..pipeline import DeviceSamples, LocalSize, Pipeline, register
 from .composite import Composite
-from .filter_mip import FilterMip
+from .filter_mip import FilterMip, atlas_layout
 from .filter_rotated import FilterRotated
 from .filter_sheared import FilterSheared
 from .partition_setup import PartitionSetup
@@ -134,6 +134,7 @@ class LayeredPipeline(Pipeline):
         self.subsample = subsample_cap(subsample)
         if mip_images is not None and filter != "mip":
             raise ValueError(f"mip_images: applies to filter='mip' only, not {filter!r}")
+        self.mip_images = None  # filter="mip": whether it reads the image atlas
         if not bucket_coc > 0:
             raise ValueError(f"bucket_coc: must be > 0, got {bucket_coc}")
         self.mode, self.filter, self.splat = mode, filter, splat
@@ -172,33 +173,29 @@ class LayeredPipeline(Pipeline):
         elif filter == "mip":
             ntx, nty = self.lay.tiles(info.width, info.height)
             nslots = ntx * nty * self.lay.maxp
-            self.mip_images = self._mip_images(mip_images, nslots)
-            self.filt = FilterMip(context, self.lay, self._local("filter_mip"),
-                                  self.mip_images, nslots)
+            atlas = self._mip_atlas(mip_images, nslots)
+            self.mip_images = atlas is not None
+            self.filt = FilterMip(context, self.lay, self._local("filter_mip"), atlas)
         else:
             self.filt = FilterRotated(context, self.lay, self._local("filter_rotated"))
         self.comp = Composite(context, self.lay, self._local("composite"))
         self._alloc(info.width, info.height)
 
-    def _mip_images(self, want: bool | None, nslots: int) -> bool:
-        """Whether filter_mip reads an image atlas through the linear sampler: asked for, or
-        by default on GPUs with image support whose 2D images hold the atlas (on CPUs the
-        sampler is software, slower than the buffer variant)."""
-        from .reference import mip_atlas, mip_levels
-
+    def _mip_atlas(self, want: bool | None, nslots: int) -> dict | None:
+        """The atlas filter_mip reads through the linear sampler, or None for buffers: asked
+        for, or by default on GPUs with image support whose 2D images hold the atlas (on CPUs
+        the sampler is software, slower than the buffer variant)."""
         dev = self.context.devices[0]
-        a = mip_atlas(self.lay.dmax, mip_levels(self.lay.dmax)[0], nslots,
-                      dev.image2d_max_width)
-        fits = a["width"] <= dev.image2d_max_width and a["height"] <= dev.image2d_max_height
+        atlas, fits = atlas_layout(dev, self.lay, nslots)
         if want is None:
-            return bool(dev.image_support and dev.type & cl.device_type.GPU and fits)
-        if want and not dev.image_support:
+            want = bool(dev.image_support and dev.type & cl.device_type.GPU and fits)
+        elif want and not dev.image_support:
             raise ValueError("mip_images: the device has no image support")
-        if want and not fits:
-            raise ValueError(f"mip_images: the atlas ({a['width']}x{a['height']}) exceeds the "
-                             f"device's 2D image limit ({dev.image2d_max_width}x"
+        elif want and not fits:
+            raise ValueError(f"mip_images: the atlas ({atlas['width']}x{atlas['height']}) "
+                             f"exceeds the device's 2D image limit ({dev.image2d_max_width}x"
                              f"{dev.image2d_max_height})")
-        return bool(want)
+        return atlas if want else None
 
     def _local(self, pass_name: str) -> LocalSize | None:
         from ..tune.runtime import tuned
@@ -226,18 +223,15 @@ class LayeredPipeline(Pipeline):
             sizes["tmp"] = sizes["grids"]
         if self.filter == "mip":
             sizes["pyramid"] = slots * NCH * mip_levels(lay.dmax)[1] * 4
-            if getattr(self, "mip_images", False):
+            if self.mip_images:
                 a = self.filt.atlas
-                sizes["atlas"] = a["width"] * a["height"] * (16 + 4)
+                sizes["atlas"] = a["width"] * a["height"] * (16 + 4)  # owned by filter_mip
         return sizes
 
     def _alloc(self, width: int, height: int) -> None:
         rw = cl.mem_flags.READ_WRITE
         self.buffers = {k: cl.Buffer(self.context, rw, v)
                         for k, v in self.buffer_sizes(width, height).items() if k != "atlas"}
-        self.images = None
-        if getattr(self, "mip_images", False):
-            self.images = self.filt.atlas_images(self.context, cl.CommandQueue(self.context))
 
     def describe(self) -> dict:
         return {"method": "layered", "mode": self.mode, "filter": self.filter,
@@ -249,7 +243,7 @@ class LayeredPipeline(Pipeline):
                 "bucket_coc": self.bucket_coc, "splat": self.splat,
                 "subsample": self.subsample,
                 "recursions": self.recursions if self.filter == "sheared" else None,
-                "mip_images": getattr(self, "mip_images", None),
+                "mip_images": self.mip_images,
                 "device_bytes": sum(self.buffer_sizes(self.info.width,
                                                       self.info.height).values()),
                 "tuning": self.tuning}
@@ -281,7 +275,7 @@ class LayeredPipeline(Pipeline):
             ev = self.filt(queue, b["params"], b["grids"], b["filtered"], nslots, [ev])
         elif self.filter == "mip":
             ev = self.filt(queue, b["params"], b["grids"], b["pyramid"], b["filtered"], nslots,
-                           [ev], self.images)
+                           [ev])
         else:
             ev = self.filt(queue, b["params"], b["grids"], b["tmp"], b["filtered"], nslots,
                            [ev])

@@ -240,12 +240,11 @@ def partition_setup(stats, lay: Layout, sigma_x: float = 0.33, threshold: float 
 
 # -- reproject -------------------------------------------------------------------------------
 
-def block_hash(cx, cy, sub):
-    """The kernel's uint32 hash of an s x s block (vectorised)."""
+def row_hash(cy, sub):
+    """The kernel's uint32 hash of block row ``cy`` for blocks of side ``sub`` (vectorised)."""
     m = np.uint64(0xFFFFFFFF)
-    cx, cy = np.asarray(cx, np.uint64), np.asarray(cy, np.uint64)
-    h = ((cx * np.uint64(0x8DA6B343)) & m) ^ ((cy * np.uint64(0xD8163841)) & m) \
-        ^ np.uint64((sub * 0xCB1AB31F) & 0xFFFFFFFF)
+    cy = np.asarray(cy, np.uint64)
+    h = ((cy * np.uint64(0xD8163841)) & m) ^ np.uint64((sub * 0xCB1AB31F) & 0xFFFFFFFF)
     h ^= h >> np.uint64(13)
     h = (h * np.uint64(0x85EBCA6B)) & m
     h ^= h >> np.uint64(16)
@@ -291,7 +290,7 @@ def reproject(fields: dict, params, kabc, lay: Layout, bilinear: bool = False,
             sub = min(int(p[P_SCALE]), subsample_cap(subsample))
             if sub > 1:  # one pixel per sub x sub block (kernels/reproject.cl)
                 ys, xs = np.mgrid[sl]
-                hh = block_hash(0, ys // sub, sub)  # per block row: the reads stream
+                hh = row_hash(ys // sub, sub)  # per block row: the reads stream
                 pick = (xs % sub == hh % sub) & (ys % sub == (hh >> 16) % sub)
                 keep &= np.repeat(pick.ravel(), depth.shape[2])
             own = (b <= p[P_HI])[keep]
