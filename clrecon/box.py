@@ -5,7 +5,8 @@ import numpy as np
 import pyopencl as cl
 
 from .device import get_kernel
-from .pipeline import DeviceSamples, LocalSize, Pipeline, register
+from .pipeline import LocalSize, Pipeline, register
+from .plan import BOX_PLAN, Plan, Step, shape_bounds
 
 
 class Box:
@@ -25,12 +26,30 @@ class Box:
         return cl.enqueue_nd_range_kernel(queue, self.kernel, gsize, lsize, wait_for=wait_for)
 
 
+def box_step(box: Box) -> Step:
+    """The box pass as a plan step (every method's box plan uses it)."""
+
+    def run(queue, f, wait_for):
+        ev = box(queue, f.buffers["color"], f.buffers["out"], f.width, f.height, f.spp,
+                 wait_for)
+        return [("box", ev)]
+
+    return Step("box", ("color",), ("out",), run)
+
+
+def box_plan(method: str, box: Box, info, extra_bounds=()) -> Plan:
+    """The plan that is the per-pixel average. Its own bounds are the frame's shape (the
+    kernel takes spp as an argument); a method that chose it because the frame's blur stays
+    inside the pixel adds the bounds that choice rests on."""
+    return Plan(method, BOX_PLAN, ("color",), (box_step(box),), {},
+                shape_bounds(info) + tuple(extra_bounds))
+
+
 @register
 class BoxPipeline(Pipeline):
     """The box filter as a one-pass plan."""
 
     name = "box"
-    fields = ("color",)
 
     def __init__(self, context, info, local: LocalSize | None = None):
         super().__init__(context, info)
@@ -45,13 +64,8 @@ class BoxPipeline(Pipeline):
         else:
             self.tuning["box"] = "api"
         self.box = Box(context, local)
+        self.set_plan(box_plan("box", self.box, info))
 
     def describe(self) -> dict:
-        return {"method": "box", "local_size": [self.box.local.x, self.box.local.y],
-                "tuning": self.tuning}
-
-    def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
-        ev = self.box(queue, samples["color"], out, samples.width, samples.height, samples.spp,
-                      wait_for)
-        self.events.append(("box", ev))
-        return ev
+        return {"method": "box", "plan": BOX_PLAN,
+                "local_size": [self.box.local.x, self.box.local.y], "tuning": self.tuning}

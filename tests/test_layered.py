@@ -62,7 +62,7 @@ def test_static_in_focus_is_the_box_filter_at_high_spp(device):
     buf = render_samples(sc, 64, 64, 64, seed=2, device=device)
     box_img = clrecon.reconstruct(buf, "box", device)
     res = clrecon.run(buf, "layered", device)
-    assert res.method["static_focus"] is True and set(res.pass_ms) == {"box"}
+    assert res.method["plan"] == "box" and set(res.pass_ms) == {"box"}
     assert psnr(res.image, reference) >= psnr(box_img, reference) - 0.5
     assert_close(res.image, box_img, rtol=1e-6, what="static focus")
 
@@ -75,7 +75,7 @@ def test_static_in_focus_full_pipeline_at_8spp(device):
     buf = render_samples(sc, 64, 64, 8, seed=2, device=device)
     box = psnr(clrecon.reconstruct(buf, "box", device), reference)
     res = clrecon.run(buf, "layered", device, specialize=False)
-    assert res.method["static_focus"] is False and res.method["defocus_only"] is True
+    assert res.method["plan"] != "box" and res.method["defocus_only"] is True
     assert psnr(res.image, reference) >= box - 0.5
 
 

@@ -152,7 +152,7 @@ def test_default_plan_is_the_box_filter_when_only_1x1_can_weigh(device, rng, sca
     coc = buf.coc_model.coc(buf.depth)
     buf.depth[:] = np.where(np.abs(coc) > coc_diameter / 2, 4.0, buf.depth)  # clip to |coc|
     res = clrecon.run(buf, "sweep", device, scales=scales)
-    assert res.method["box_equivalent"] == (plan == "box")
+    assert (res.method["plan"] == "box") == (plan == "box")
     assert (set(res.pass_ms) == {"box"}) == (plan == "box")
     want = ref.reconstruct(buf, scales=scales)
     assert_close(res.image, want, rtol=2e-4, atol=2e-5, what=f"{scales} {coc_diameter}")
@@ -221,7 +221,7 @@ def test_box_equivalent_specialization(device, rng, knobs, coc):
     res = clrecon.run(buf, "sweep", device, **knobs)
     narrow = 3.0 if knobs.get("scales") == 4 else 1.0
     expect_box = 2 * coc <= narrow
-    assert res.method["box_equivalent"] is expect_box
+    assert (res.method["plan"] == "box") is expect_box
     assert (set(res.pass_ms) == {"box"}) is expect_box
     full = clrecon.reconstruct(buf, "sweep", device, specialize=False, **knobs)
     assert_close(res.image, full, rtol=1e-5, atol=1e-6, what="specialized vs full sweep")

@@ -14,8 +14,9 @@ merging at 10%; ``filter="sheared"`` or ``"mip"``) and ``lrdm`` (full statistics
 merging, ``filter="rotated"``: the rotated separable Gaussian with bilinear taps).
 Specialisations chosen from ``info`` (reported by ``describe()``): without motion every
 kernel is built with ``-D HAS_MOTION=0`` (``defocus_only``); a static frame with
-``|coc| < 0.5`` px everywhere runs the box pass alone (``static_focus``; ``specialize=False``
-forces the full plan).
+``|coc| < 0.5`` px everywhere runs the box pass alone (``plan="box"``; ``specialize=False``
+forces the full plan). Each choice is a bound of the plan, checked on every frame
+(:mod:`clrecon.plan`); the bucket function comes from each frame's own depth range.
 
 Depth buckets (``kernels/layered.h``): a bucket spans at most ``bucket_coc`` (0.5 px) of CoC
 and at most 1/8 of the frame's depth range, so they are evenly spaced in CoC near the focus
@@ -77,6 +78,7 @@ import math
 import pyopencl as cl
 
 from ..pipeline import DeviceSamples, LocalSize, Pipeline, register
+from ..plan import Bound, Plan, Step, coc_bound, motion_bound, shape_bounds
 from .composite import Composite
 from .filter_mip import FilterMip, atlas_layout
 from .filter_rotated import FilterRotated
@@ -91,6 +93,12 @@ FILTERS = ("sheared", "mip", "rotated")
 SPLATS = ("nearest", "bilinear")
 NBUCKETS = 32
 STATIC_COC = 0.5  # px: below this everywhere (and no motion) the frame is reconstructed by box
+
+
+def _guard(info, sigma_x: float, guard: int) -> int:
+    """Guard band (grid px) a frame needs: 3 sigma of its largest blur, at most ``guard``."""
+    sig = math.sqrt(info.max_abs_coc ** 2 / 4 + info.max_abs_motion ** 2 / 12 + sigma_x ** 2)
+    return max(2, min(guard, math.ceil(3 * sig) + 1))
 
 
 @register
@@ -142,9 +150,7 @@ class LayeredPipeline(Pipeline):
         self.sigma_x, self.bucket_coc, self.seed = float(sigma_x), float(bucket_coc), int(seed)
         motion = info.has_motion if has_motion is None else bool(has_motion)
         # the guard band need not exceed the largest blur the frame can have
-        sig = math.sqrt(info.max_abs_coc ** 2 / 4 + info.max_abs_motion ** 2 / 12
-                        + sigma_x ** 2)
-        gmax = max(2, min(int(guard), math.ceil(3 * sig) + 1))
+        gmax = _guard(info, sigma_x, int(guard))
         if int(reach) < 1:
             raise ValueError(f"reach: must be >= 1, got {reach}")
         self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
@@ -152,17 +158,27 @@ class LayeredPipeline(Pipeline):
         if not motion:  # defocus only: shutter time and motion are never read
             self.fields = ("color", "position", "depth", "lens")
         self.tuning: dict[str, str] = {}
+        # what the plan rests on (checked on every frame): the motion terms compiled out of a
+        # static frame; the guard band sized from the largest blur
+        bounds = []
+        if has_motion is None and not motion:
+            bounds.append(motion_bound(0.0, "planned for a static frame: HAS_MOTION=0"))
         # a static frame whose blur stays inside the pixel (|coc| < 0.5 px) has nothing to
         # reconstruct beyond the pixel filter: it costs, and is, a box filter
         self.box = None
         if specialize and not info.has_motion and info.max_abs_coc < STATIC_COC:
-            from ..box import Box
+            from ..box import Box, box_plan
 
-            self.fields = ("color",)
             self.box = Box(context, self._local("box"))
-        if self.box is not None:
-            self.buffers = {}
+            self.set_plan(box_plan("layered", self.box, info, [
+                coc_bound(STATIC_COC, "box plan: every CoC inside the pixel", "<"),
+                motion_bound(0.0, "box plan: a static frame")]))
             return
+        if gmax < int(guard):
+            g, sx = int(guard), self.sigma_x
+            bounds.append(Bound("guard_px", "<=", gmax, "guard band sized from the largest "
+                                "blur", lambda i: _guard(i, sx, g), ("depth", "motion")))
+        self.bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
         self.stats_pass = TileStats(context, self.lay, self._local("tile_stats"))
         self.setup = PartitionSetup(context, self.lay, self._local("partition_setup"))
         self.reproject = Reproject(context, self.lay, splat == "bilinear",
@@ -179,7 +195,7 @@ class LayeredPipeline(Pipeline):
         else:
             self.filt = FilterRotated(context, self.lay, self._local("filter_rotated"))
         self.comp = Composite(context, self.lay, self._local("composite"))
-        self._alloc(info.width, info.height)
+        self.set_plan(self._plan(info))
 
     def _mip_atlas(self, want: bool | None, nslots: int) -> dict | None:
         """The atlas filter_mip reads through the linear sampler, or None for buffers: asked
@@ -228,15 +244,54 @@ class LayeredPipeline(Pipeline):
                 sizes["atlas"] = a["width"] * a["height"] * (16 + 4)  # owned by filter_mip
         return sizes
 
-    def _alloc(self, width: int, height: int) -> None:
-        rw = cl.mem_flags.READ_WRITE
-        self.buffers = {k: cl.Buffer(self.context, rw, v)
-                        for k, v in self.buffer_sizes(width, height).items() if k != "atlas"}
+    def _plan(self, info) -> Plan:
+        temps = {k: v for k, v in self.buffer_sizes(info.width, info.height).items()
+                 if k != "atlas"}  # the atlas is filter_mip's own
+        ntx, nty = self.lay.tiles(info.width, info.height)
+        nslots = ntx * nty * self.lay.maxp
+        fields = self.fields
+
+        def stats(queue, f, wait):
+            kabc = self.bucket_params(f.samples, f.info)
+            return [("tile_stats", self.stats_pass(queue, f.samples, kabc, self.stats_stride,
+                                                   self.seed, f.buffers["stats"], wait))]
+
+        def setup(queue, f, wait):
+            b = f.buffers
+            return [("partition_setup", self.setup(queue, b["stats"], ntx * nty, self.sigma_x,
+                                                   self.merge_threshold, b["params"], wait))]
+
+        def reproject(queue, f, wait):
+            b = f.buffers
+            kabc = self.bucket_params(f.samples, f.info)
+            return [("reproject", self.reproject(queue, f.samples, kabc, b["params"],
+                                                 b["grids"], wait))]
+
+        def filt(queue, f, wait):
+            b = f.buffers
+            work = {"sheared": (), "mip": ("pyramid",), "rotated": ("tmp",)}[self.filter]
+            self.filt(queue, b["params"], b["grids"], *(b[k] for k in work), b["filtered"],
+                      nslots, wait)
+            return list(self.filt.events)
+
+        def composite(queue, f, wait):
+            b = f.buffers
+            return [("composite", self.comp(queue, b["color"], b["params"], b["filtered"],
+                                            f.width, f.height, b["out"], wait))]
+
+        work = tuple(k for k in ("pyramid", "tmp") if k in temps)
+        return Plan("layered", f"{self.mode}/{self.filter}", fields, (
+            Step("tile_stats", ("depth",), ("stats",), stats),
+            Step("partition_setup", ("stats",), ("params",), setup),
+            Step("reproject", fields + ("params",), ("grids",), reproject),
+            Step(f"filter_{self.filter}", ("params", "grids"), work + ("filtered",), filt),
+            Step("composite", ("color", "params", "filtered"), ("out",), composite)),
+            temps, self.bounds)
 
     def describe(self) -> dict:
         return {"method": "layered", "mode": self.mode, "filter": self.filter,
                 "defocus_only": not self.lay.has_motion,
-                "static_focus": self.box is not None, "tile": self.lay.tile,
+                "plan": self.plan.name, "tile": self.lay.tile,
                 "stats_stride": self.stats_stride, "merge_threshold": self.merge_threshold,
                 "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
                 "guard": self.lay.gmax, "reach": self.lay.reach_max,
@@ -246,40 +301,12 @@ class LayeredPipeline(Pipeline):
                 "mip_images": self.mip_images,
                 "device_bytes": sum(self.buffer_sizes(self.info.width,
                                                       self.info.height).values()),
-                "tuning": self.tuning}
+                "bounds": [b.describe() for b in self.plan.bounds], "tuning": self.tuning}
 
-    def bucket_params(self, samples: DeviceSamples) -> tuple:
+    def bucket_params(self, samples: DeviceSamples, info=None) -> tuple:
+        """The bucket function's coefficients for a frame: from its own lens model and depth
+        range (a kernel argument, not a bound: any frame gets its own buckets)."""
+        info = info or samples.info or self.info
         c0, c1 = samples.coc
-        return bucket_params(c0, c1, self.info.min_depth, self.info.max_depth,
-                             self.lay.nbuckets, self.bucket_coc)
-
-    def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
-        w, h = samples.width, samples.height
-        if self.box is not None:
-            ev = self.box(queue, samples["color"], out, w, h, samples.spp, wait_for)
-            self.events.append(("box", ev))
-            return ev
-        ntx, nty = self.lay.tiles(w, h)
-        b = self.buffers
-        kabc = self.bucket_params(samples)
-        ev = self.stats_pass(queue, samples, kabc, self.stats_stride, self.seed, b["stats"],
-                             wait_for)
-        self.events.append(("tile_stats", ev))
-        ev = self.setup(queue, b["stats"], ntx * nty, self.sigma_x, self.merge_threshold,
-                        b["params"], [ev])
-        self.events.append(("partition_setup", ev))
-        ev = self.reproject(queue, samples, kabc, b["params"], b["grids"], [ev])
-        self.events.append(("reproject", ev))
-        nslots = ntx * nty * self.lay.maxp
-        if self.filter == "sheared":
-            ev = self.filt(queue, b["params"], b["grids"], b["filtered"], nslots, [ev])
-        elif self.filter == "mip":
-            ev = self.filt(queue, b["params"], b["grids"], b["pyramid"], b["filtered"], nslots,
-                           [ev])
-        else:
-            ev = self.filt(queue, b["params"], b["grids"], b["tmp"], b["filtered"], nslots,
-                           [ev])
-        self.events.extend(self.filt.events)
-        ev = self.comp(queue, samples["color"], b["params"], b["filtered"], w, h, out, [ev])
-        self.events.append(("composite", ev))
-        return ev
+        return bucket_params(c0, c1, info.min_depth, info.max_depth, self.lay.nbuckets,
+                             self.bucket_coc)

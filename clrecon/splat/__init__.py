@@ -28,8 +28,9 @@ import logging
 import numpy as np
 import pyopencl as cl
 
-from ..box import Box
-from ..pipeline import DeviceSamples, Pipeline, register
+from ..box import Box, box_plan
+from ..pipeline import Pipeline, register
+from ..plan import Bound, Plan, Step, coc_bound, motion_bound, shape_bounds
 from ..samples import FIELDS
 from ..tune.runtime import tuned
 from ..tune.specs import local_size_of
@@ -95,28 +96,32 @@ class SplatPipeline(Pipeline):
         self.shift = min(info.max_abs_coc, smax[0]) + (
             motion if self.motion_split > 1 else 0.5 * motion)
         self.pad = self.reach + int(np.ceil(min(self.shift, float(self.reach)))) + 2
-        hits = info.miss_fraction < 1.0
-        inv_near = 1.0 / info.min_depth if hits else 0.0
-        inv_far = 0.0 if info.miss_fraction > 0 or not hits else 1.0 / info.max_depth
-        self.layers = int(layers) if inv_near > inv_far else 1
-        self.inv_far = inv_far
-        self.layer_scale = self.layers / (inv_near - inv_far) if inv_near > inv_far else 0.0
+        self.requested_layers = int(layers)
+        self.layers = int(layers) if _layer_params(info, 1)[1] > 0 else 1
+        self.inv_far, self.layer_scale = _layer_params(info, self.layers)
         self.use_lap = not bool(np.all(self.table.fast[reach]))
         self.has_motion = info.has_motion
         self.tuning: dict[str, str] = {}
+        # what the plan rests on: reach, pad, sub-segments and the integration are sized
+        # from the largest blur; motion compiled out of a static frame; one layer for a
+        # frame of a single depth
+        bounds = [coc_bound(info.max_abs_coc, "reach and pad sized from the largest CoC"),
+                  motion_bound(info.max_abs_motion, "reach, pad and motion sub-segments "
+                               "sized from the longest motion")]
+        if self.layers == 1 and self.requested_layers > 1:
+            bounds.append(Bound("inverse_depth_span", "<=", 0.0, "one layer: a frame of a "
+                                "single depth", lambda i: _inv_span(i), ("depth",)))
         # static and in focus: every sample lands, whole, in its own pixel -> the box filter
-        self.plan = "box" if self.shift == 0.0 and self._delta_only(reach) else "splat"
-        if self.plan == "box":
+        self.plan_name = "box" if self.shift == 0.0 and self._delta_only(reach) else "splat"
+        if self.plan_name == "box":
             self.use_lap, self.layers, self.pad = False, 1, 0
             found = tuned(context, "box", info)
             self.tuning["box"] = found.source
             self.box = Box(context, local_size_of(found.config))
+            self.set_plan(box_plan("splat", self.box, info, bounds))
             return
         ph, pw = info.height + 2 * self.pad, info.width + 2 * self.pad
         self.shape = (ph, pw)
-        rw = cl.mem_flags.READ_WRITE
-        img = self.layers * ph * pw * 16
-        self.direct = cl.Buffer(context, rw, img)
         self.device_table = DeviceTable(context, self.table)
 
         def config(pass_name):
@@ -132,16 +137,70 @@ class SplatPipeline(Pipeline):
                            None if cfg is None else int(cfg["wg"]), scatter)
         self.composite = Composite(context, self.layers, self.use_lap,
                                    local_size_of(config("splat_composite")))
-        self.ring = cl.Buffer(context, rw, self.layers * 16)
         self.pyramid = pyramid
+        self.integrate = Integrate(context, ph, pw, pyramid, local_size_of(
+            config("integrate"))) if self.use_lap else None
+        self.set_plan(self._plan(info, shape_bounds(info, "kernels compiled for this spp")
+                                 + tuple(bounds)))
+
+    def _plan(self, info, bounds) -> Plan:
+        img = self.layers * self.shape[0] * self.shape[1] * 16
+        temps = {"direct": img, "ring": self.layers * 16}
         if self.use_lap:
-            self.lap = cl.Buffer(context, rw, img)
-            self.prim = cl.Buffer(context, rw, img)
-            self.integrate = Integrate(context, ph, pw, pyramid,
-                                       local_size_of(config("integrate")))
-        else:
-            self.lap = self.prim = self.direct
-            self.integrate = None
+            temps |= {"lap": img, "prim": img}
+        lap = "lap" if self.use_lap else "direct"
+        prim = "prim" if self.use_lap else "direct"
+
+        def clear(queue, f, wait):
+            return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
+                                                     img, wait_for=wait))
+                    for k in dict.fromkeys(("direct", lap))]
+
+        def splat(queue, f, wait):
+            b = f.buffers
+            inv_far, scale = _layer_params(f.info, self.layers)
+            self.splat(queue, f.samples, self.device_table, inv_far, scale, self.pad,
+                       self.reach, b[lap], b["direct"], wait, self.shift)
+            return [("splat", e) for e in self.splat.events]
+
+        def integrate(queue, f, wait):
+            b, evs = f.buffers, []
+            for layer in range(self.layers):
+                ev = self.integrate(queue, b["lap"], layer, b["prim"], b["ring"], wait)
+                evs += [("integrate", e) for e in self.integrate.events]
+                wait = [ev]
+            return evs
+
+        def composite(queue, f, wait):
+            b = f.buffers
+            return [("splat_composite", self.composite(
+                queue, b[prim], b["direct"], b["ring"], f.width, f.height, self.pad,
+                b["out"], wait))]
+
+        steps = [Step("clear", (), tuple(dict.fromkeys(("direct", lap))), clear),
+                 Step("splat", tuple(FIELDS), tuple(dict.fromkeys(("direct", lap))), splat)]
+        if self.use_lap:
+            steps.append(Step("integrate", ("lap",), ("prim", "ring"), integrate))
+        steps.append(Step("splat_composite", (prim, "direct", "ring"), ("out",), composite))
+        return Plan("splat", "splat", tuple(FIELDS), tuple(steps),
+                    temps, tuple(bounds))
+
+    # the pipeline's own temporaries under the names the tuner's runners use
+    @property
+    def direct(self):
+        return self.buffers["direct"]
+
+    @property
+    def lap(self):
+        return self.buffers["lap" if self.use_lap else "direct"]
+
+    @property
+    def prim(self):
+        return self.buffers["prim" if self.use_lap else "direct"]
+
+    @property
+    def ring(self):
+        return self.buffers["ring"]
 
     def _delta_only(self, reach: np.ndarray) -> bool:
         """Whether every reachable cell is drawn densely as the unit pixel at offset 0."""
@@ -154,11 +213,11 @@ class SplatPipeline(Pipeline):
         return True
 
     def describe(self) -> dict:
-        if self.plan == "box":
+        if self.plan_name == "box":
             return {"method": "splat", "plan": "box", "psf": self.psf,
                     "psf_source": self.psf_source, "has_motion": False, "layers": 1,
                     "integrate": False, "tuning": self.tuning}
-        return {"method": "splat", "plan": "splat", "psf": self.psf,
+        return {"method": "splat", "plan": self.plan.name, "psf": self.psf,
                 "psf_source": self.psf_source,
                 "mode": "dense" if self.dense else "sparse", "layers": self.layers,
                 "pyramid": self.pyramid if self.use_lap else None,
@@ -168,29 +227,24 @@ class SplatPipeline(Pipeline):
                 "clamped": self.clamped, "motion_split": self.motion_split,
                 "scatter": self.splat.scatter,
                 "fast_cells": int(self.table.fast.sum()), "cells": len(self.table.fast),
-                "tuning": self.tuning}
+                "bounds": [b.describe() for b in self.plan.bounds], "tuning": self.tuning}
 
-    def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
-        w, h = samples.width, samples.height
-        if self.plan == "box":
-            ev = self.box(queue, samples["color"], out, w, h, samples.spp, wait_for)
-            self.events.append(("box", ev))
-            return ev
-        size = self.layers * self.shape[0] * self.shape[1] * 16
-        evs = [cl.enqueue_fill_buffer(queue, self.direct, np.float32(0), 0, size,
-                                      wait_for=wait_for)]
-        if self.use_lap:
-            evs.append(cl.enqueue_fill_buffer(queue, self.lap, np.float32(0), 0, size,
-                                              wait_for=wait_for))
-        for ev in evs:
-            self.events.append(("clear", ev))
-        ev = self.splat(queue, samples, self.device_table, self.inv_far, self.layer_scale,
-                        self.pad, self.reach, self.lap, self.direct, evs, self.shift)
-        self.events += [("splat", e) for e in self.splat.events]
-        if self.use_lap:
-            for layer in range(self.layers):
-                ev = self.integrate(queue, self.lap, layer, self.prim, self.ring, [ev])
-                self.events += [("integrate", e) for e in self.integrate.events]
-        ev = self.composite(queue, self.prim, self.direct, self.ring, w, h, self.pad, out, [ev])
-        self.events.append(("splat_composite", ev))
-        return ev
+
+def _inv_range(info) -> tuple[float, float]:
+    """(1 / nearest hit, 1 / farthest hit or 0 when the frame has misses)."""
+    hits = info.miss_fraction < 1.0
+    inv_near = 1.0 / info.min_depth if hits else 0.0
+    inv_far = 0.0 if info.miss_fraction > 0 or not hits else 1.0 / info.max_depth
+    return inv_near, inv_far
+
+
+def _inv_span(info) -> float:
+    inv_near, inv_far = _inv_range(info)
+    return inv_near - inv_far
+
+
+def _layer_params(info, layers: int) -> tuple[float, float]:
+    """``(inv_far, layer_scale)`` of a frame: layers uniform in 1/depth over its own range
+    (kernel arguments, so each frame gets its own placement)."""
+    inv_near, inv_far = _inv_range(info)
+    return inv_far, (layers / (inv_near - inv_far) if inv_near > inv_far else 0.0)

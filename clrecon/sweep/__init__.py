@@ -29,8 +29,9 @@ from __future__ import annotations
 
 import pyopencl as cl
 
-from ..box import Box
-from ..pipeline import DeviceSamples, Pipeline, register
+from ..box import Box, box_plan
+from ..pipeline import Pipeline, register
+from ..plan import Plan, Step, coc_bound, motion_bound, shape_bounds
 from ..tune.runtime import tuned
 from ..tune.specs import DEFAULTS, local_size_of, make_resolve
 from .block import SweepBlock, block_local_bytes
@@ -64,7 +65,6 @@ class SweepPipeline(Pipeline):
         self.diameter_scale = float(diameter_scale)
         spp = info.spp
         npix = info.width * info.height
-        rw = cl.mem_flags.READ_WRITE
         self.tuning: dict[str, str] = {}
         self.block = self.box = None
 
@@ -80,17 +80,41 @@ class SweepPipeline(Pipeline):
         narrow = 3.0 if self.scales == 4 and not self.dof_layers else 1.0
         explicit = (sort, tile, tile_merge, group) != (None,) * 4
         self.box_equivalent = bool(specialize) and not explicit and self.max_diameter <= narrow
+        # what the plan rests on: the motion term compiled out of a static frame, and the
+        # box plan chosen because every diameter is within the narrow block
+        bounds = []
+        if smooth_motion is None and not self.smooth_motion and not self.dof_layers:
+            bounds.append(motion_bound(0.0, "planned for a static frame: no motion term"))
         if self.box_equivalent:
-            self.fields = ("color",)
             self.box = Box(context, local("box"))
+            if self.diameter_scale > 0:
+                bounds.append(coc_bound(narrow / (2 * self.diameter_scale),
+                                        f"box plan: every diameter <= {narrow:g} px"))
+                if self.smooth_motion and not self.dof_layers:
+                    bounds.append(motion_bound(narrow / self.diameter_scale,
+                                               f"box plan: every diameter <= {narrow:g} px"))
+            self.set_plan(box_plan("sweep", self.box, info, bounds))
             return
+        bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
         if self.dof_layers:
-            self.fields = ("color", "depth")
             self.sums_pass = SweepLayerSums(context, spp, local("sweep_layer_sums"))
             self.combine = SweepLayerResolve(context, spp, local("sweep_layer_resolve"))
-            self.sums = cl.Buffer(context, rw, npix * 3 * 16)
+            ds = self.diameter_scale
+
+            def sums(queue, f, wait):
+                return [("sweep_layer_sums",
+                         self.sums_pass(queue, f.samples, ds, f.buffers["sums"], wait))]
+
+            def resolve(queue, f, wait):
+                return [("sweep_layer_resolve", self.combine(
+                    queue, f.buffers["sums"], f.width, f.height, f.buffers["out"], wait))]
+
+            self.set_plan(Plan("sweep", "dof_layers", ("color", "depth"), (
+                Step("sweep_layer_sums", ("color", "depth"), ("sums",), sums),
+                Step("sweep_layer_resolve", ("sums",), ("out",), resolve)),
+                {"sums": npix * 3 * 16}, bounds))
             return
-        self.fields = ("color", "position", "depth", "motion")
+        fields = ("color", "position", "depth", "motion")
         given = {k: v for k, v in (("sort", sort), ("tile", tile), ("tile_merge", tile_merge))
                  if v is not None}
         if given.get("sort", "tile" if given else default_sort(context, self.scales, spp)) \
@@ -103,6 +127,13 @@ class SweepPipeline(Pipeline):
                 self.tuning["sweep_block"] = "api"
             self.block = SweepBlock(context, spp, self.scales, exponent, self.smooth_motion,
                                     group)
+
+            def block(queue, f, wait):
+                return [("sweep_block", self.block(queue, f.samples, self.diameter_scale,
+                                                   f.buffers["out"], wait))]
+
+            self.set_plan(Plan("sweep", "block", fields,
+                               (Step("sweep_block", fields, ("out",), block),), {}, bounds))
             return
         self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
         if given:  # the caller's knobs win over tuning; the rest from the pass default
@@ -115,13 +146,26 @@ class SweepPipeline(Pipeline):
             config = found.config or DEFAULTS["sweep_resolve"]
             self.tuning["sweep_resolve"] = found.source
         self.resolve = make_resolve(context, spp, self.scales, exponent, config)
-        self.keys = cl.Buffer(context, rw, npix * spp * 16)
-        self.colors = cl.Buffer(context, rw, npix * spp * 16)
+
+        def prepare(queue, f, wait):
+            b = f.buffers
+            return [("sweep_prepare", self.prepare(queue, f.samples, self.diameter_scale,
+                                                   b["keys"], b["colors"], wait))]
+
+        def resolve_(queue, f, wait):
+            b = f.buffers
+            return [("sweep_resolve", self.resolve(queue, b["keys"], b["colors"], f.width,
+                                                   f.height, b["out"], wait))]
+
+        self.set_plan(Plan("sweep", self.resolve.sort, fields, (
+            Step("sweep_prepare", fields, ("keys", "colors"), prepare),
+            Step("sweep_resolve", ("keys", "colors"), ("out",), resolve_)),
+            {"keys": npix * spp * 16, "colors": npix * spp * 16}, bounds))
 
     def describe(self) -> dict:
-        d = {"method": "sweep", "diameter_scale": self.diameter_scale, "tuning": self.tuning,
-             "max_diameter_px": round(self.max_diameter, 3),
-             "box_equivalent": self.box_equivalent}
+        d = {"method": "sweep", "plan": self.plan.name, "diameter_scale": self.diameter_scale,
+             "tuning": self.tuning, "max_diameter_px": round(self.max_diameter, 3),
+             "bounds": [b.describe() for b in self.plan.bounds]}
         if self.box is not None:
             return d | {"mode": "box (every denoising diameter within the narrow block)",
                         "requested": "dof_layers" if self.dof_layers else f"{self.scales}-scale",
@@ -134,25 +178,3 @@ class SweepPipeline(Pipeline):
             return d | {"sort": "block", "group": self.block.group}
         return d | {"sort": self.resolve.sort, "tile": self.resolve.tile,
                     "tile_merge": self.resolve.tile_merge}
-
-    def enqueue(self, queue, samples: DeviceSamples, out, wait_for=None):
-        w, h = samples.width, samples.height
-        if self.box is not None:
-            ev = self.box(queue, samples["color"], out, w, h, samples.spp, wait_for)
-            self.events.append(("box", ev))
-            return ev
-        if self.dof_layers:
-            ev = self.sums_pass(queue, samples, self.diameter_scale, self.sums, wait_for)
-            self.events.append(("sweep_layer_sums", ev))
-            ev = self.combine(queue, self.sums, w, h, out, [ev])
-            self.events.append(("sweep_layer_resolve", ev))
-            return ev
-        if self.block is not None:
-            ev = self.block(queue, samples, self.diameter_scale, out, wait_for)
-            self.events.append(("sweep_block", ev))
-            return ev
-        ev = self.prepare(queue, samples, self.diameter_scale, self.keys, self.colors, wait_for)
-        self.events.append(("sweep_prepare", ev))
-        ev = self.resolve(queue, self.keys, self.colors, w, h, out, [ev])
-        self.events.append(("sweep_resolve", ev))
-        return ev
