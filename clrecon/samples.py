@@ -160,68 +160,54 @@ class SampleBuffer:
         return (self.position - coc * self.lens - shutter).astype(np.float32)
 
     def inspect(self) -> FrameInfo:
-        """One pass over the frame: the facts that decide which terms a kernel needs."""
-        hit = self.depth < MISS_DEPTH
-        # misses keep their lens term: coc(inf) = C1 (the background is defocused too)
-        coc = np.abs(self.coc())
-        hit_depth = self.depth[hit] if hit.any() else np.array([np.inf], np.float32)
-        motion = np.sqrt((self.motion.astype(np.float64) ** 2).sum(-1))
-        return FrameInfo(
-            width=self.width,
-            height=self.height,
-            spp=self.spp,
-            max_abs_coc=float(coc.max(initial=0.0)),
-            max_abs_motion=float(motion.max(initial=0.0)),
-            min_depth=float(hit_depth.min()),
-            max_depth=float(hit_depth.max()),
-            miss_fraction=float(1.0 - hit.mean()),
-        )
+        """One pass over the frame: the facts that decide which terms a kernel needs.
+
+        Scans the frame in blocks that stay in cache; a frame the block scan does not cover
+        (not validated: non-positive or NaN depths, another layout, a subclassed or
+        non-finite CoC model) is described by the plain whole-array formulas instead, with
+        the same results.
+        """
+        with np.errstate(over="ignore", invalid="ignore"):  # float32 squares may overflow
+            info = _inspect_blocks(self)
+        return info if info is not None else _inspect_arrays(self)
 
     # -- validation ------------------------------------------------------------------------
-    def validate(self) -> SampleBuffer:
-        """Check shapes and value ranges; raise ``ValueError`` naming the field and sample.
-
-        Returns ``self`` so that ``buf.validate()`` can be used inline.
-        """
-        if self.depth.ndim != 3:
-            raise ValueError(f"depth: expected shape (H, W, S), got {self.depth.shape}")
+    def check_layout(self, fields=None) -> SampleBuffer:
+        """Check what the kernels read of memory, without looking at values: each field of
+        ``fields`` (default: all) is a C-contiguous float32 array of the frame's shape.
+        Raises ``ValueError`` naming the field. Cheap: the values are checked by
+        :meth:`validate` on the host or by the device inspection pass."""
+        if not isinstance(self.depth, np.ndarray) or self.depth.ndim != 3:
+            raise ValueError(f"depth: expected shape (H, W, S), got "
+                             f"{getattr(self.depth, 'shape', type(self.depth).__name__)}")
         hws = self.depth.shape
         if min(hws) < 1:
             raise ValueError(f"depth: empty frame of shape {hws}")
-        for name, tail in FIELDS.items():
+        for name in fields or FIELDS:
             arr = getattr(self, name)
-            if arr.shape != hws + tail:
-                raise ValueError(f"{name}: expected shape {hws + tail}, got {arr.shape}")
-        _first_bad("depth", np.isnan(self.depth) | (self.depth <= 0), self.depth,
-                   "must be positive (inf for a miss), got")
-        _first_bad("color", ~np.isfinite(self.color).all(-1), self.color, "must be finite, got")
-        _first_bad("motion", ~np.isfinite(self.motion).all(-1), self.motion, "must be finite, got")
-        _first_bad("time", ~((self.time >= 0) & (self.time <= 1)), self.time,
-                   "must lie in [0, 1], got")
-        r2 = (self.lens.astype(np.float64) ** 2).sum(-1)
-        _first_bad("lens", ~(r2 <= (1 + LENS_TOLERANCE) ** 2), self.lens,
-                   "must lie in the unit disk, got")
-        h, w, _ = hws
-        px = np.arange(w, dtype=np.float32)[None, :, None]
-        py = np.arange(h, dtype=np.float32)[:, None, None]
-        x, y = self.position[..., 0], self.position[..., 1]
-        tol = POSITION_TOLERANCE
-        outside = ~((x >= px - tol) & (x <= px + 1 + tol) & (y >= py - tol) & (y <= py + 1 + tol))
-        _first_bad("position", outside, self.position, "must lie inside its pixel, got")
+            if not isinstance(arr, np.ndarray):
+                raise ValueError(f"{name}: expected a numpy array, got {type(arr).__name__}")
+            if arr.dtype != np.float32:
+                raise ValueError(f"{name}: expected float32, got {arr.dtype}")
+            if arr.shape != hws + FIELDS[name]:
+                raise ValueError(f"{name}: expected shape {hws + FIELDS[name]}, got {arr.shape}")
+            if not arr.flags.c_contiguous:
+                raise ValueError(f"{name}: expected a C-contiguous array")
+        return self
+
+    def validate(self) -> SampleBuffer:
+        """Check layout (:meth:`check_layout`) and value ranges; raise ``ValueError`` naming
+        the field and, for a value, the first bad sample in C order and the number of bad
+        samples (rules in the order depth, color, motion, time, lens, position).
+
+        Returns ``self`` so that ``buf.validate()`` can be used inline.
+        """
+        self.check_layout()
+        with np.errstate(over="ignore", invalid="ignore"):  # float32 squares may overflow
+            _check_values(self)
         if not (np.isfinite(self.coc_model.c0) and np.isfinite(self.coc_model.c1)):
             raise ValueError(f"coc_model: coefficients must be finite, got {self.coc_model}")
         return self
-
-
-def _first_bad(name: str, bad: np.ndarray, values: np.ndarray, what: str) -> None:
-    if bad.any():
-        idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        py, px, s = idx
-        count = int(bad.sum())
-        raise ValueError(
-            f"{name}: sample (y={py}, x={px}, i={s}) {what} {values[idx].tolist()} "
-            f"({count} bad sample{'s' if count != 1 else ''})"
-        )
 
 
 def pixel_centres(height: int, width: int, spp: int) -> np.ndarray:
@@ -231,3 +217,264 @@ def pixel_centres(height: int, width: int, spp: int) -> np.ndarray:
     pos = np.stack([xs, ys], -1)[:, :, None, :]
     # a real copy: a broadcast view would be read-only (and shared by every sample)
     return np.array(np.broadcast_to(pos, (height, width, spp, 2)), dtype=np.float32)
+
+
+# -- block scans of validate() and inspect() ------------------------------------------------
+#
+# Both methods walk the frame in blocks of about _BLOCK_SAMPLES samples (whole rows, or a run
+# of pixels of one row, so that every block of every field is contiguous) and reduce each
+# block to a few scalars with float32 temporaries that stay in cache. validate() uses the
+# scalars as a filter that never passes a bad block: a block that fails it is checked again
+# with the exact whole-array formulas, which give the messages (and float64 where the rule
+# is float64). inspect() derives every FrameInfo value exactly from the block scalars.
+
+#: samples per block (a few hundred kB per field; the temporaries fit in L2 / L3)
+_BLOCK_SAMPLES = 1 << 16
+
+#: value rules of validate(), in the order they are reported
+_RULES: tuple[tuple[str, str], ...] = (
+    ("depth", "must be positive (inf for a miss), got"),
+    ("color", "must be finite, got"),
+    ("motion", "must be finite, got"),
+    ("time", "must lie in [0, 1], got"),
+    ("lens", "must lie in the unit disk, got"),
+    ("position", "must lie inside its pixel, got"),
+)
+
+_LENS_LIMIT = (1 + LENS_TOLERANCE) ** 2  # float64, as the rule compares
+
+
+def _blocks(h: int, w: int, s: int) -> list[tuple[int, int, int, int]]:
+    """``(y0, y1, x0, x1)`` blocks in C order, each contiguous in every field."""
+    row = w * s
+    if row <= _BLOCK_SAMPLES:
+        k = _BLOCK_SAMPLES // row
+        return [(y, min(h, y + k), 0, w) for y in range(0, h, k)]
+    k = max(1, _BLOCK_SAMPLES // s)
+    return [(y, y + 1, x, min(w, x + k)) for y in range(h) for x in range(0, w, k)]
+
+
+def _f32_below(x: float) -> np.float32:
+    """The largest float32 that is <= ``x`` (x finite and positive)."""
+    f = np.float32(x)
+    return f if float(f) <= x else np.nextafter(f, np.float32(0))
+
+
+def _pixel_bounds(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper position bounds of pixels ``0..n-1`` exactly as the rule computes
+    them (float32 arithmetic with the tolerance as a float32 scalar)."""
+    p = np.arange(n, dtype=np.float32)
+    return p - POSITION_TOLERANCE, p + 1 + POSITION_TOLERANCE
+
+
+def _exact_bad(buf: SampleBuffer, name: str, blk: tuple[int, int, int, int]) -> np.ndarray:
+    """The rule ``name`` on one block: a bool mask (y, x, i), the whole-array formula."""
+    y0, y1, x0, x1 = blk
+    sl = (slice(y0, y1), slice(x0, x1))
+    if name == "depth":
+        d = buf.depth[sl]
+        return np.isnan(d) | (d <= 0)
+    if name in ("color", "motion"):
+        return ~np.isfinite(getattr(buf, name)[sl]).all(-1)
+    if name == "time":
+        t = buf.time[sl]
+        return ~((t >= 0) & (t <= 1))
+    if name == "lens":
+        r2 = (buf.lens[sl].astype(np.float64) ** 2).sum(-1)
+        return ~(r2 <= _LENS_LIMIT)
+    h, w, _ = buf.depth.shape
+    px = np.arange(w, dtype=np.float32)[x0:x1][None, :, None]
+    py = np.arange(h, dtype=np.float32)[y0:y1][:, None, None]
+    pos = buf.position[sl]
+    x, y = pos[..., 0], pos[..., 1]
+    tol = POSITION_TOLERANCE
+    return ~((x >= px - tol) & (x <= px + 1 + tol) & (y >= py - tol) & (y <= py + 1 + tol))
+
+
+def _check_values(buf: SampleBuffer) -> None:
+    """The value rules of :meth:`SampleBuffer.validate` (layout already checked).
+
+    Filters, per block, each exact or conservative (a block that holds a bad sample always
+    fails; a good block fails only within a rounding margin of a bound):
+
+    * depth ``min > 0``; time ``min >= 0 and max <= 1``; color, motion ``isfinite``: exact
+      (NaN fails every comparison).
+    * lens: float32 ``u*u + v*v`` (two roundings, relative error < 2**-22) against a float32
+      limit 2**-22 below the float64 one; NaN and overflow fail.
+    * position: ``d = position - lower`` in float32 has the sign of the exact difference
+      (gradual underflow), so ``min(d) >= 0`` is the lower bound exactly; ``max(d) <= W``,
+      with ``W`` 2**-22 below the narrowest pixel's ``upper - lower``, implies the upper.
+    """
+    h, w, s = buf.depth.shape
+    blocks = _blocks(h, w, s)
+    lo_x, hi_x = _pixel_bounds(w)
+    lo_y, hi_y = _pixel_bounds(h)
+    width = min(float(np.min(hi_x.astype(np.float64) - lo_x)),
+                float(np.min(hi_y.astype(np.float64) - lo_y)))
+    w_safe = _f32_below(width * (1 - 2.0**-22))
+    lens_safe = _f32_below(_LENS_LIMIT * (1 - 2.0**-22))
+    y0, y1, x0, x1 = blocks[0]
+    cols = x1 - x0
+    n = (y1 - y0) * cols * s
+    sq = np.empty(2 * n, np.float32)
+    r2 = np.empty(n, np.float32)
+    ok3 = np.empty(3 * n, np.bool_)
+    # lower x bound of every position value of a row of the block (0 under y); the y bound
+    # is subtracted row by row after
+    lower = np.zeros((cols, s, 2), np.float32)
+    lower[..., 0] = lo_x[:cols, None]
+    partial = cols < w  # blocks are runs of pixels of one row: lower is refilled per block
+    suspect: dict[str, list] = {name: [] for name, _ in _RULES}
+    for blk in blocks:
+        y0, y1, x0, x1 = blk
+        m = (y1 - y0) * (x1 - x0) * s
+        d = buf.depth[y0:y1, x0:x1]
+        if not d.min() > 0:
+            suspect["depth"].append(blk)
+        for name, k, tmp in (("color", 3, ok3), ("motion", 2, ok3)):
+            a = getattr(buf, name)[y0:y1, x0:x1].reshape(-1)
+            if not np.isfinite(a, out=tmp[:k * m]).all():
+                suspect[name].append(blk)
+        t = buf.time[y0:y1, x0:x1]
+        if not (t.min() >= 0 and t.max() <= 1):
+            suspect["time"].append(blk)
+        lens = buf.lens[y0:y1, x0:x1].reshape(-1)
+        q = np.multiply(lens, lens, out=sq[:2 * m]).reshape(m, 2)
+        if not np.add(q[:, 0], q[:, 1], out=r2[:m]).max() <= lens_safe:
+            suspect["lens"].append(blk)
+        rows, k = y1 - y0, x1 - x0
+        if partial:
+            lower[:k, :, 0] = lo_x[x0:x1, None]
+        pos = buf.position[y0:y1, x0:x1].reshape(rows, k * s * 2)
+        diff = np.subtract(pos, lower[:k].reshape(-1), out=sq[:2 * m].reshape(rows, -1))
+        ydiff = diff.reshape(rows, k * s, 2)[:, :, 1]
+        np.subtract(ydiff, lo_y[y0:y1, None], out=ydiff)
+        if not (diff.min() >= 0 and diff.max() <= w_safe):
+            suspect["position"].append(blk)
+    for name, what in _RULES:
+        count, first = 0, None
+        for blk in suspect[name]:
+            bad = _exact_bad(buf, name, blk)
+            c = int(np.count_nonzero(bad))
+            if c and first is None:
+                dy, dx, i = (int(v) for v in np.argwhere(bad)[0])
+                first = (blk[0] + dy, blk[2] + dx, i)
+            count += c
+        if count:
+            values = getattr(buf, name)[first].tolist()
+            py, px, i = first
+            raise ValueError(
+                f"{name}: sample (y={py}, x={px}, i={i}) {what} {values} "
+                f"({count} bad sample{'s' if count != 1 else ''})"
+            )
+
+
+def _inspect_arrays(buf: SampleBuffer) -> FrameInfo:
+    """:meth:`SampleBuffer.inspect` by whole-array formulas (any frame, any layout)."""
+    hit = buf.depth < MISS_DEPTH
+    # misses keep their lens term: coc(inf) = C1 (the background is defocused too)
+    coc = np.abs(buf.coc())
+    hit_depth = buf.depth[hit] if hit.any() else np.array([np.inf], np.float32)
+    motion = np.sqrt((buf.motion.astype(np.float64) ** 2).sum(-1))
+    return FrameInfo(
+        width=buf.width,
+        height=buf.height,
+        spp=buf.spp,
+        max_abs_coc=float(coc.max(initial=0.0)),
+        max_abs_motion=float(motion.max(initial=0.0)),
+        min_depth=float(hit_depth.min()),
+        max_depth=float(hit_depth.max()),
+        miss_fraction=float(1.0 - hit.mean()),
+    )
+
+
+def _motion_r2(motion: np.ndarray) -> np.ndarray:
+    """Squared motion length of each sample in float64, as :func:`_inspect_arrays`."""
+    return (motion.astype(np.float64) ** 2).sum(-1)
+
+
+def _inspect_blocks(buf: SampleBuffer) -> FrameInfo | None:
+    """:meth:`SampleBuffer.inspect` from per-block scalars; ``None`` where it does not
+    apply (then :func:`_inspect_arrays`). Every value equals the whole-array formula's:
+
+    * depth (all > 0, none NaN): hits are ``d < float32(MISS_DEPTH)``, counted; the hit
+      minimum is the overall minimum when there is a hit; the hit maximum is the maximum of
+      the bit patterns less ``bits(MISS_DEPTH)`` modulo 2**32 (hits wrap to the top).
+    * coc: ``coc(d)`` is monotonic in ``d`` (every rounding step is), so ``max |coc|`` is
+      reached at the smallest or the largest depth: two evaluations of the same formula.
+    * motion: float32 ``mx*mx + my*my`` per sample is within a factor (1 +- 2**-23) of the
+      float64 value, so the longest vector lies in a block whose float32 maximum is within
+      1e-6 of the overall one; only those blocks are evaluated in float64 (sqrt is
+      monotonic: max of sqrt = sqrt of max).
+    """
+    depth, motion, model = buf.depth, buf.motion, buf.coc_model
+    for arr in (depth, motion):
+        if not (isinstance(arr, np.ndarray) and arr.dtype == np.float32
+                and arr.flags.c_contiguous):
+            return None
+    if depth.ndim != 3 or min(depth.shape) < 1 or motion.shape != depth.shape + (2,):
+        return None
+    if type(model) is not CocModel or not (np.isfinite(model.c0) and np.isfinite(model.c1)):
+        return None
+    h, w, s = depth.shape
+    blocks = _blocks(h, w, s)
+    y0, y1, x0, x1 = blocks[0]
+    n = (y1 - y0) * (x1 - x0) * s
+    miss = np.float32(MISS_DEPTH)
+    miss_bits = np.uint32(miss.view(np.uint32))
+    sq = np.empty(2 * n, np.float32)
+    r2 = np.empty(n, np.float32)
+    wrapped = np.empty(n, np.uint32)
+    flags = np.empty(n, np.bool_)
+    lo = np.float32(np.inf)
+    hi = np.float32(-np.inf)
+    hit_top = None  # largest wrapped hit bit pattern
+    hits = 0
+    block_r2 = []
+    for y0, y1, x0, x1 in blocks:
+        m = (y1 - y0) * (x1 - x0) * s
+        d = depth[y0:y1, x0:x1].reshape(-1)
+        dmin = d.min()
+        if not dmin > 0:  # not validated: zero, negative or NaN depths
+            return None
+        dmax = d.max()
+        lo, hi = min(lo, dmin), max(hi, dmax)
+        if dmax < miss:
+            h_top = (int(dmax.view(np.uint32)) - int(miss_bits)) % 2**32
+            hits += m
+        else:
+            nmiss = int(np.count_nonzero(np.greater_equal(d, miss, out=flags[:m])))
+            hits += m - nmiss
+            h_top = (int(np.subtract(d.view(np.uint32), miss_bits, out=wrapped[:m]).max())
+                     if nmiss < m else None)
+        if h_top is not None and (hit_top is None or h_top > hit_top):
+            hit_top = h_top
+        mo = motion[y0:y1, x0:x1].reshape(-1)
+        q = np.multiply(mo, mo, out=sq[:2 * m]).reshape(m, 2)
+        block_r2.append(float(np.add(q[:, 0], q[:, 1], out=r2[:m]).max()))
+    top = float(np.max(block_r2))  # NaN propagates
+    if not np.isfinite(top):  # NaN or float32 overflow: evaluate every sample
+        r2max = float(_motion_r2(motion).max(initial=0.0))
+    elif top >= 1e-30:
+        r2max = max(float(_motion_r2(motion[b[0]:b[1], b[2]:b[3]]).max())
+                    for b, v in zip(blocks, block_r2) if v >= top * (1 - 1e-6))
+    elif motion.min() == 0 and motion.max() == 0:  # no motion at all
+        r2max = 0.0
+    else:  # float32 squares underflow: evaluate every sample
+        r2max = float(_motion_r2(motion).max(initial=0.0))
+    coc = np.abs(model.coc(np.array([lo, hi], np.float32)))
+    if hits:
+        hit_max = np.array((hit_top + int(miss_bits)) % 2**32, np.uint32).view(np.float32)
+        min_depth, max_depth = float(lo), float(hit_max)
+    else:
+        min_depth = max_depth = float(np.inf)
+    return FrameInfo(
+        width=w,
+        height=h,
+        spp=s,
+        max_abs_coc=float(coc.max(initial=0.0)),
+        max_abs_motion=float(np.sqrt(np.float64(r2max))),
+        min_depth=min_depth,
+        max_depth=max_depth,
+        miss_fraction=float(1.0 - np.float64(hits) / (h * w * s)),
+    )
