@@ -30,3 +30,8 @@ class KernelBuildError(ClreconError):
         super().__init__(
             f"failed to build {source} with options {' '.join(self.options)!r}:\n{log.strip()}"
         )
+
+
+class DeviceMemoryError(ClreconError):
+    """A plan needs more device memory than the device (or, for a CPU device, the process's
+    address-space limit) allows; raised before anything is allocated."""

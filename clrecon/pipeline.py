@@ -20,6 +20,7 @@ import numpy as np
 import pyopencl as cl
 
 from .device import Device, DeviceSpec, event_ms, get_device
+from .errors import DeviceMemoryError
 from .plan import Plan, covering
 from .samples import FIELDS, FrameInfo, SampleBuffer
 
@@ -177,6 +178,7 @@ class Pipeline:
 
     # -- building --------------------------------------------------------------------------
     def set_plan(self, plan: Plan) -> None:
+        check_memory(self.context.devices[0], plan, self.info)
         self.plan = plan
         self.fields = plan.fields
         self._own = {}
@@ -283,6 +285,51 @@ class Pipeline:
         for name, ev in self.events:
             times[name] = times.get(name, 0.0) + event_ms(ev)
         return times
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2**30:.2f} GiB"
+
+
+def _address_space_left() -> float:
+    """Bytes this process may still map under its address-space limit (inf: no limit)."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft == resource.RLIM_INFINITY:
+            return float("inf")
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        return float(max(soft - used, 0))
+    except (ImportError, OSError, ValueError):
+        return float("inf")
+
+
+def check_memory(dev: cl.Device, plan: Plan, info: FrameInfo) -> None:
+    """Refuse a plan whose buffers cannot fit the device, before anything is allocated:
+    each temporary against the largest allocation, the temporaries with the samples the plan
+    reads and the image against the device's memory and, on a CPU device (whose buffers live
+    in this process), against the address space the process may still map."""
+    n = info.width * info.height * info.spp
+    samples = sum(n * int(np.prod(FIELDS[f], dtype=np.int64)) * 4 for f in plan.fields)
+    temps = sum(plan.temporaries.values())
+    total = temps + samples + info.width * info.height * 12
+    what = f"the {plan.method} plan for {info.width}x{info.height} at {info.spp} spp"
+    for name, size in plan.temporaries.items():
+        if size > dev.max_mem_alloc_size:
+            raise DeviceMemoryError(
+                f"{what}: temporary {name!r} needs {_gib(size)}, more than the device's "
+                f"largest allocation ({_gib(dev.max_mem_alloc_size)}, {dev.name})")
+    budget, where = float(dev.global_mem_size), f"the device's memory ({dev.name})"
+    if dev.type & cl.device_type.CPU:
+        left = _address_space_left()
+        if left < budget:
+            budget, where = left, "the address space this process may still map (ulimit -v)"
+    if total > budget:
+        raise DeviceMemoryError(
+            f"{what} needs {_gib(total)} (temporaries {_gib(temps)}, samples {_gib(samples)}), "
+            f"more than {where}: {_gib(budget)}")
 
 
 def _shape_info(samples: DeviceSamples) -> FrameInfo:

@@ -21,6 +21,7 @@ import pytest
 from conftest import assert_close
 
 import clrecon
+from clrecon.errors import DeviceMemoryError
 from clrecon.pipeline import DeviceSamples, make_pipeline
 from clrecon.plan import BOX_PLAN, covering
 from clrecon.scenes import get_scene, render_samples
@@ -258,3 +259,40 @@ def test_invalid_samples_are_refused_through_run_with_the_host_message(device):
             clrecon.run(buf, method, device)
         assert str(dev.value) == str(host.value)
 
+
+
+# -- memory: refused before anything is allocated ----------------------------------------
+def test_plan_larger_than_the_device_is_refused_with_both_figures(device):
+    info = dataclasses.replace(_frame("fence", device=device).inspect(), width=16384,
+                               height=16384, spp=64)
+    with pytest.raises(DeviceMemoryError, match=r"the layered plan for 16384x16384 at 64 spp"
+                                                r".* needs [\d.]+ GiB.* more than .*[\d.]+ GiB"):
+        make_pipeline("layered", device.context, info)
+
+
+_ULIMIT = textwrap.dedent("""
+    import dataclasses, resource, sys
+    from clrecon.device import get_device
+    from clrecon.errors import DeviceMemoryError
+    from clrecon.pipeline import make_pipeline
+    from clrecon.scenes import get_scene, render_samples
+    dev = get_device(int(sys.argv[1]))
+    info = render_samples(get_scene("fence"), 32, 32, spp=4, seed=0, device=dev).inspect()
+    resource.setrlimit(resource.RLIMIT_AS, (8_000_000_000, resource.RLIM_INFINITY))
+    try:
+        make_pipeline("layered", dev.context,
+                      dataclasses.replace(info, width=4096, height=4096))
+        print("planned")
+    except DeviceMemoryError as exc:
+        print("refused:", exc)
+""")
+
+
+def test_layered_4096_under_a_memory_cap_is_refused_not_aborted(device):
+    """The issue's case: 4096x4096, 4 spp under ``ulimit -v 8000000`` aborted PoCL."""
+    if not device.context.devices[0].type & cl.device_type.CPU:
+        pytest.skip("the address-space limit binds host-memory (CPU) devices")
+    proc = subprocess.run([sys.executable, "-c", _ULIMIT, str(device.info.index)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.startswith("refused: the layered plan for 4096x4096"), proc.stdout
