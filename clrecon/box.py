@@ -5,6 +5,7 @@ import numpy as np
 import pyopencl as cl
 
 from .device import get_kernel
+from .knobs import KnobTypeError
 from .pipeline import LocalSize, Pipeline, register
 from .plan import BOX_PLAN, Plan, Step, shape_bounds
 
@@ -15,15 +16,27 @@ class Box:
     name = "box"
 
     def __init__(self, context: cl.Context, local: LocalSize | None = None):
-        self.local = local or LocalSize(16, 4)
+        self.local = check_local("local", local) or LocalSize(16, 4)
+        dev = context.devices[0]
+        self.local.check(dev, self.name)  # before building for a size that cannot launch
         defines = {} if self.local.x is None else {"WG_X": self.local.x, "WG_Y": self.local.y}
         self.kernel = get_kernel(context, "box", "box_average", defines)
+        self.local.check(dev, self.name, self.kernel)
 
     def __call__(self, queue, color: cl.Buffer, out: cl.Buffer, width: int, height: int,
                  spp: int, wait_for=None) -> cl.Event:
         gsize, lsize = self.local.for_range(width, height)
         self.kernel.set_args(color, out, np.int32(width), np.int32(height), np.int32(spp))
         return cl.enqueue_nd_range_kernel(queue, self.kernel, gsize, lsize, wait_for=wait_for)
+
+
+def check_local(name: str, local) -> LocalSize | None:
+    """``local`` if it is a :class:`LocalSize` or ``None`` (its values are checked by
+    :class:`LocalSize` itself, the device's limits by :meth:`LocalSize.check`)."""
+    if local is not None and not isinstance(local, LocalSize):
+        raise KnobTypeError(f"{name}: must be a LocalSize(x, y) or None, got {local!r} "
+                            f"({type(local).__name__})")
+    return local
 
 
 def box_step(box: Box) -> Step:
@@ -52,6 +65,7 @@ class BoxPipeline(Pipeline):
     name = "box"
 
     def __init__(self, context, info, local: LocalSize | None = None):
+        check_local("local", local)
         super().__init__(context, info)
         self.tuning = {}
         if local is None:

@@ -9,10 +9,13 @@ speed/accuracy knobs against ``box`` and Open Image Denoise.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
+import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +38,107 @@ def _int_list(text: str) -> list[int]:
         return [int(v) for v in text.split(",") if v]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}") from None
+
+
+# -- what a command reads and writes -------------------------------------------------------
+
+def _stage(args, what: str, path=None) -> None:
+    """Record what the command is doing: an error that names nothing is reported with it."""
+    args.stage = (what, None if path is None else str(path))
+
+
+def _sample_files(path) -> list[str]:
+    """The files a sample buffer path stands for (TLFR: the data file and its header)."""
+    path = str(path)
+    if os.path.splitext(path)[1].lower() in (".bin", ".txt"):
+        return [path, path + ".header"]
+    return [path]
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Whether ``a`` and ``b`` are one file: the same path after resolving links, or (both
+    existing) the same inode."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return False
+
+
+def _check_files(reads: dict[str, list[str]], writes: dict[str, list[str]]) -> None:
+    """Refuse, before anything is read or written, an output that is one of the inputs or
+    another output (``reads``/``writes``: the option naming them -> their files)."""
+    outs = [(opt, f) for opt, files in writes.items() for f in files]
+    for i, (opt, out) in enumerate(outs):
+        for what, files in reads.items():
+            for f in files:
+                if _same_file(out, f):
+                    raise ValueError(f"{opt} {out}: is the same file as the {what} {f}; "
+                                     f"refusing to overwrite it (write elsewhere)")
+        for opt2, out2 in outs[:i]:
+            if _same_file(out, out2) and opt2 != opt:
+                raise ValueError(f"{opt} {out}: is the same file as {opt2} {out2}")
+
+
+def _check_output(opt: str, path, allowed: tuple[str, ...] | None = None) -> None:
+    """What saving ``path`` would refuse, checked before the work that produces it: the
+    extension, a missing parent folder, a folder in the file's place."""
+    path = str(path)
+    if allowed is not None:
+        ext = os.path.splitext(path)[1].lower()
+        if ext not in allowed:
+            raise ValueError(f"{opt} {path}: unsupported extension {ext or '(none)'!r}; "
+                             f"supported: {', '.join(allowed)}")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise FileNotFoundError(errno.ENOENT, f"no folder {parent} to write into ({opt})",
+                                path)
+    if os.path.isdir(path):
+        raise IsADirectoryError(errno.EISDIR, f"is a directory, not a file ({opt})", path)
+
+
+def _check_output_dir(opt: str, path) -> None:
+    """An output folder: refuse an existing file in its place before any work."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise NotADirectoryError(errno.ENOTDIR, f"exists and is not a folder ({opt})",
+                                 str(path))
+
+
+# -- knobs ----------------------------------------------------------------------------------
+
+def _parse_knobs(items) -> dict:
+    """``--knob NAME=VALUE`` options as a dict (values as in ``clrecon table``'s variants)."""
+    from .bench.methods import parse_value
+
+    knobs = {}
+    for item in items or []:
+        name, eq, value = item.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise ValueError(f"--knob {item!r}: expected NAME=VALUE (e.g. --knob tile=8)")
+        if name in knobs:
+            raise ValueError(f"--knob {name}: given twice")
+        knobs[name] = parse_value(value.strip())
+    return knobs
+
+
+def _check_knob_names(method: str, knobs: dict, what: str = "") -> None:
+    """Unknown methods and knobs as a ``ValueError`` before any work (the library's
+    ``make_pipeline`` says ``TypeError``, an API misuse there, a typo here)."""
+    import inspect
+
+    from .pipeline import METHODS, _load_methods
+
+    _load_methods()
+    if method not in METHODS:
+        raise ValueError(f"{what}method: unknown {method!r}; available: {sorted(METHODS)}")
+    accepted = set(inspect.signature(METHODS[method].__init__).parameters) - {
+        "self", "context", "info"}
+    unknown = sorted(set(knobs) - accepted)
+    if unknown:
+        raise ValueError(f"{what}method {method!r} got unknown knobs: {unknown}; it takes "
+                         f"{sorted(accepted)}")
 
 
 class _Bar:
@@ -83,9 +187,11 @@ def cmd_devices(args) -> int:
 
 
 def cmd_scene(args) -> int:
-    from .io import save_samples
+    from .io import SAMPLE_EXTENSIONS, save_samples
     from .scenes import get_scene, render_samples
 
+    _check_output("-o", args.output, SAMPLE_EXTENSIONS)
+    _stage(args, f"rendering scene {args.name}")
     scene = get_scene(args.name)
     w, h = args.size or scene.default_size
     t0 = time.perf_counter()
@@ -98,6 +204,7 @@ def cmd_scene(args) -> int:
         buf = _with_bar(f"render {args.name}", render_samples, scene, w, h, args.spp,
                         seed=args.seed, device=args.device)
     dt = time.perf_counter() - t0
+    _stage(args, "writing", args.output)
     save_samples(args.output, buf)
     info = buf.inspect()
     print(f"{args.name}: {w}x{h}, {args.spp} spp, {w * h * args.spp / dt / 1e6:.1f} M samples/s "
@@ -107,51 +214,72 @@ def cmd_scene(args) -> int:
 
 
 def cmd_reference(args) -> int:
-    from .io import save_image
+    from .io import IMAGE_EXTENSIONS, save_image
     from .scenes import get_scene, render_reference
 
+    _check_output("-o", args.output, IMAGE_EXTENSIONS)
+    _stage(args, f"rendering the reference of scene {args.name}")
     scene = get_scene(args.name)
     w, h = args.size or scene.default_size
     t0 = time.perf_counter()
     img = _with_bar(f"reference {args.name}", render_reference, scene, w, h, args.spp,
                     seed=args.seed, device=args.device)
     dt = time.perf_counter() - t0
+    _stage(args, "writing", args.output)
     save_image(args.output, img)
     spp = args.spp or scene.reference_spp
     print(f"{args.name}: reference {w}x{h} at {spp} spp in {dt:.1f} s -> {args.output}")
     return 0
 
 
-def _quality(image, reference_path) -> dict:
+def _quality(image, reference_path, ref=None) -> dict:
     from .io import load_image
     from .metrics import evaluate
 
-    ref = load_image(reference_path)
+    if ref is None:
+        ref = load_image(reference_path)
     if ref.shape != image.shape:
-        raise ValueError(f"reference: shape {ref.shape} does not match the image {image.shape}")
+        raise ValueError(f"reference {reference_path}: shape {ref.shape} does not match the "
+                         f"image {image.shape}")
     return evaluate(image, ref)
 
 
 def cmd_reconstruct(args) -> int:
-    from .bench.methods import parse_value
-    from .io import load_samples, save_image
+    from .io import IMAGE_EXTENSIONS, load_samples, save_image
     from .pipeline import run
 
-    knobs = dict(kv.split("=", 1) for kv in args.knob or [])
-    knobs = {k: parse_value(v) for k, v in knobs.items()}
+    knobs = _parse_knobs(args.knob)
     for name in METHOD_FLAGS:  # method flags given on the command line become knobs
         value = getattr(args, name)
         if value is not None and value is not False:
+            if name in knobs:
+                flag = "--" + name.replace("_", "-")
+                raise ValueError(f"--knob {name}: also given as {flag}; give it once")
             knobs[name] = value
+    _check_knob_names(args.method, knobs)
+    reads = {"input": _sample_files(args.input)}
+    if args.reference:
+        reads["--reference"] = [str(args.reference)]
+    _check_files(reads, {"-o": [str(args.output)]})
+    _check_output("-o", args.output, IMAGE_EXTENSIONS)
+    _stage(args, "reading samples", args.input)
     buf = load_samples(args.input)
+    ref = None
+    if args.reference:  # read before the output is written (and before the long part)
+        from .io import load_image
+
+        _stage(args, "reading the reference", args.reference)
+        ref = load_image(args.reference)
+    _stage(args, f"reconstructing {args.input} with {args.method}")
     res = run(buf, args.method, args.device, **knobs)
+    _stage(args, "writing", args.output)
     save_image(args.output, res.image)
     out = {"input": str(args.input), "output": str(args.output), "device": res.device,
            "size": [buf.width, buf.height], "spp": buf.spp, **res.method,
            "pass_ms": res.pass_ms, "device_ms": res.device_ms, "upload_ms": res.upload_ms,
            "total_ms": res.total_ms}
-    if args.reference:
-        out["quality"] = _quality(res.image, args.reference)
+    if ref is not None:
+        out["quality"] = _quality(res.image, args.reference, ref)
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
@@ -170,6 +298,9 @@ def cmd_psf(args) -> int:
 
     opts = SparsifyOptions(failures=args.failures, lloyd=args.lloyd, anneal=args.anneal,
                            spacing=args.spacing)
+    if args.output:
+        _check_output("-o", args.output, (".npz",))
+    _stage(args, f"building the {args.model} table")
     bar = _Bar(f"psf {args.model}", unit="cells")
     t0 = time.perf_counter()
     try:
@@ -178,6 +309,7 @@ def cmd_psf(args) -> int:
         bar.close()
     dt = time.perf_counter() - t0
     out = Path(args.output) if args.output else table_path(args.model)
+    _stage(args, "writing", out)
     table.save(out)
     size = out.stat().st_size
     print(f"{args.model}: {table.cells} cells, {len(table.points)} spreadlets, mean sparsity "
@@ -196,7 +328,10 @@ METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile", "group",
 def cmd_compare(args) -> int:
     from .io import load_image
 
-    q = _quality(load_image(args.a), args.b)
+    _stage(args, "reading", args.a)
+    image = load_image(args.a)
+    _stage(args, "reading", args.b)
+    q = _quality(image, args.b)
     if args.json:
         print(json.dumps(q))
     else:
@@ -211,8 +346,17 @@ def cmd_demo(args) -> int:
     from .pipeline import run
     from .scenes import get_scene, render_reference, render_samples
 
+    methods = [m for m in args.methods.split(",") if m]
+    for method in methods:
+        if method != "oidn":
+            _check_knob_names(method, {}, "--methods: ")
+    if not methods:
+        raise ValueError(f"--methods: no method in {args.methods!r}")
+    _check_output_dir("-o", args.output)
     out = Path(args.output)
+    _stage(args, "creating", out)
     out.mkdir(parents=True, exist_ok=True)
+    _stage(args, f"rendering scene {args.scene}")
     scene = get_scene(args.scene)
     w, h = args.size or scene.default_size
     # the first frame of a shape pays for program build and PoCL's per-shape specialisation
@@ -231,7 +375,8 @@ def cmd_demo(args) -> int:
           f"({w * h * args.spp / t_render / 1e6:.1f} M samples/s); reference {ref_spp} spp "
           f"in {t_ref:.1f} s")
     device = None
-    for method in args.methods.split(","):
+    for method in methods:
+        _stage(args, f"running {method} on scene {args.scene}")
         if method == "oidn":
             image, device_ms, total_ms = _demo_oidn(buf, args.device)
         else:
@@ -243,7 +388,7 @@ def cmd_demo(args) -> int:
         save_image(out / f"{args.scene}_{method}.png", image)
         print(f"{method:8s} device {device_ms:8.2f} ms (total {total_ms:7.1f} ms)  "
               f"PSNR {q['psnr']:.2f} dB  SSIM {q['ssim']:.4f}  FLIP {q['flip']:.4f}")
-    if "oidn" in args.methods.split(","):
+    if "oidn" in methods:
         print("oidn: the box image denoised by Intel Open Image Denoise (pyoidn, CPU, quality "
               "high); its device ms is box + denoiser wall time")
     print(f"device: {device}")
@@ -269,6 +414,8 @@ def _demo_oidn(buf, device):
 def cmd_report(args) -> int:
     from .bench.foundation import foundation_report
 
+    _check_output_dir("-o", args.output)
+    _stage(args, "measuring the report into", args.output)
     bar = _Bar("report", unit="step")
     try:
         rep = foundation_report(args.scenes, size=args.size or (512, 512), spps=args.spp,
@@ -292,6 +439,10 @@ def _variant(text: str):
 def cmd_table(args) -> int:
     from .bench.methods import methods_table
 
+    for label, method, knobs in args.variant or []:
+        _check_knob_names(method, knobs, f"--variant {label}: ")
+    _check_output_dir("-o", args.output)
+    _stage(args, "measuring the table into", args.output)
     bar = _Bar("table", unit="step")
     try:
         rep = methods_table(args.scenes, variants=args.variant, size=args.size or (512, 512),
@@ -316,6 +467,10 @@ def _device_list(text: str):
 def cmd_trade(args) -> int:
     from .bench.trade import trade
 
+    for method in args.methods or []:
+        _check_knob_names(method, {}, "--methods: ")
+    _check_output_dir("-o", args.output)
+    _stage(args, "measuring the trade into", args.output)
     bar = _Bar("trade", unit="step")
     try:
         rep = trade(args.scenes, args.methods, spps=args.spp, size=args.size,
@@ -331,9 +486,22 @@ def cmd_trade(args) -> int:
 def cmd_bench(args) -> int:
     from .bench.devices import bench, compare, write_outputs
 
+    for label, method, knobs in args.variant or []:
+        _check_knob_names(method, knobs, f"--variant {label}: ")
+    for method in args.methods or []:
+        _check_knob_names(method, {}, "--methods: ")
+    writes = {k: [str(v)] for k, v in (("--json", args.json), ("--csv", args.csv)) if v}
+    _check_files({"--compare baseline": [str(args.compare)]} if args.compare else {}, writes)
+    for opt, (path,) in writes.items():
+        _check_output(opt, path)
     old = None
     if args.compare:  # read first: a bad baseline fails before the measurements
-        old = json.loads(Path(args.compare).read_text())
+        _stage(args, "reading the baseline", args.compare)
+        try:
+            old = json.loads(Path(args.compare).read_text())
+        except json.JSONDecodeError as exc:  # a ValueError that would not name the file
+            raise ValueError(f"--compare {args.compare}: not JSON ({exc})") from None
+    _stage(args, "measuring")
     bar = _Bar("bench", unit="step")
     try:
         variants = (args.variant or []) + [(m, m, {}) for m in args.methods or []]
@@ -341,6 +509,7 @@ def cmd_bench(args) -> int:
                     repeats=args.repeats, progress=bar, scene=args.scene)
     finally:
         bar.close()
+    _stage(args, "writing the results")
     write_outputs(res, json_path=args.json, csv_path=args.csv)
     print(res["markdown"])
     if old is not None:
@@ -387,6 +556,8 @@ def cmd_tune(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="clrecon", description=__doc__.splitlines()[0])
     p.add_argument("-v", "--verbose", action="store_true", help="log what the library decides")
+    p.add_argument("--debug", action="store_true",
+                   help="on an error, show the traceback instead of the one-line message")
     sub = p.add_subparsers(dest="command", required=True)
 
     def dev(sp):
@@ -550,16 +721,77 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv=None) -> int:
+def _expected_errors() -> tuple[type[BaseException], ...]:
+    """The error families a user can cause (bad input, files, the device, memory): one line
+    on stderr and exit code 2. Anything else (``TypeError``, ``AttributeError``...) is a bug
+    and keeps its traceback. ``ValueError`` includes :class:`~clrecon.knobs.KnobTypeError`,
+    the ``TypeError`` of a knob of the wrong type."""
+    import zipfile
+
+    import pyopencl as cl
+
     from .errors import ClreconError
 
+    return (ValueError, ClreconError, OSError, MemoryError, OverflowError,
+            zipfile.BadZipFile, cl.Error)
+
+
+def _message(exc: BaseException, stage) -> str:
+    """One line for ``exc``: its message (first line; OSError as ``file: reason``), the
+    family where the message alone would not say it, and what the command was doing when
+    the message names no file."""
+    import zipfile
+
+    import pyopencl as cl
+
+    if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+        text = f"{exc.filename}: {exc.strerror}"
+        if exc.filename2 is not None:
+            text += f" (and {exc.filename2})"
+    else:
+        text = str(exc)
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    text = lines[0] if lines else ""
+    if len(lines) > 1:
+        text += f" [{len(lines) - 1} more lines: run with --debug to see them]"
+    kind = None
+    if isinstance(exc, cl.Error):
+        kind = f"OpenCL {type(exc).__name__}"
+    elif isinstance(exc, MemoryError):
+        kind = "out of host memory"
+    elif isinstance(exc, OverflowError):
+        kind = "value out of range"
+    elif isinstance(exc, zipfile.BadZipFile):
+        kind = "corrupt archive"
+    if kind:
+        text = f"{kind}: {text}" if text else kind
+    elif not text:
+        text = type(exc).__name__
+    if stage is not None and not isinstance(exc, ValueError):
+        what, path = stage
+        if path is None or path not in text:
+            text += f" (while {what}{'' if path is None else ' ' + path})"
+    return text
+
+
+def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="clrecon: %(message)s")
+    if not (args.verbose or args.debug):
+        try:  # "Non-empty compiler output": noise on a terminal, not an error
+            import pyopencl as cl
+
+            warnings.filterwarnings("ignore", category=cl.CompilerWarning)
+        except (ImportError, AttributeError):
+            pass
+    args.stage = None
     try:
         return args.fn(args)
-    except (ValueError, TypeError, FileNotFoundError, ClreconError) as exc:
-        print(f"clrecon {args.command}: error: {exc}", file=sys.stderr)
+    except _expected_errors() as exc:
+        if args.debug:
+            raise
+        print(f"clrecon {args.command}: error: {_message(exc, args.stage)}", file=sys.stderr)
         return 2
 
 

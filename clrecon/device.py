@@ -143,12 +143,31 @@ def list_devices() -> list[DeviceInfo]:
     return [_info(i, d) for i, d in enumerate(_all_devices())]
 
 
+def _check_spec(spec, name: str = "device"):
+    """``spec`` if it is a device index, a name substring or ``None``; a ``TypeError``
+    (``KnobTypeError``) or ``ValueError`` naming the argument otherwise."""
+    from .knobs import KnobTypeError
+
+    if spec is None:
+        return None
+    if isinstance(spec, (bool, np.bool_)) or not isinstance(spec, (int, np.integer, str)):
+        raise KnobTypeError(f"{name}: must be a device index (int), a name substring (str), "
+                            f"a Device or None, got {spec!r} ({type(spec).__name__})")
+    if isinstance(spec, str):
+        if not spec.strip():
+            raise ValueError(f"{name}: empty device name (give an index, a substring of "
+                             f"'platform / device' or None)")
+        return spec
+    return int(spec)
+
+
 def _pick(spec: DeviceSpec) -> tuple[int, cl.Device]:
+    spec = _check_spec(spec)
     devices = _all_devices()
     if not devices:
         raise DeviceError("no OpenCL device found on any platform")
     if spec is None:
-        spec = os.environ.get(ENV_DEVICE) or None
+        spec = _check_spec(os.environ.get(ENV_DEVICE, "").strip() or None, ENV_DEVICE)
     if spec is None:
         gpus = [i for i, d in enumerate(devices) if d.type & cl.device_type.GPU]
         i = gpus[0] if gpus else 0

@@ -8,8 +8,9 @@ produced) on the device need not come back to the host to be checked.
 * :class:`Inspect` is the pass: built once per field set, ``__call__`` only sets arguments
   and enqueues (clear + reduction), :meth:`Inspect.read` fetches the small result.
 * :func:`inspect_device` runs it and returns a :class:`~clrecon.samples.FrameInfo`; with
-  ``validate=True`` it raises the same ``ValueError`` (same text) that ``validate()`` would
-  raise for the host copy of the frame.
+  ``validate=True`` it raises the same ``ValueError`` (same text) that
+  ``validate(allow_negative=...)`` would raise for the host copy of the frame (the bounds of
+  :mod:`clrecon.samples`: colour, depth, CoC, motion).
 
 Agreement with the host: validation verdicts, first bad samples, counts, ``min_depth``,
 ``max_depth`` and ``miss_fraction`` are exact. ``max_abs_coc`` is computed in float on the
@@ -32,18 +33,27 @@ import pyopencl as cl
 
 from .camera import CocModel
 from .device import get_kernel
-from .samples import FIELDS, LENS_TOLERANCE, MISS_DEPTH, POSITION_TOLERANCE, FrameInfo
-
-#: validation rules in SampleBuffer.validate() order: (field, message text); the index is
-#: the rule number of kernels/inspect.cl (R_DEPTH ... R_POSITION)
-RULES: tuple[tuple[str, str], ...] = (
-    ("depth", "must be positive (inf for a miss), got"),
-    ("color", "must be finite, got"),
-    ("motion", "must be finite, got"),
-    ("time", "must lie in [0, 1], got"),
-    ("lens", "must lie in the unit disk, got"),
-    ("position", "must lie inside its pixel, got"),
+from .samples import (
+    COLOR_MAX,
+    FIELDS,
+    LENS_TOLERANCE,
+    MIN_DEPTH,
+    MISS_DEPTH,
+    MOTION_MAX,
+    POSITION_TOLERANCE,
+    RULE_NAMES,
+    FrameInfo,
+    bad_sample_message,
+    coc_min_depth,
+    coc_model_error,
 )
+
+#: validation rules in SampleBuffer.validate() order (``coc`` after the coefficients); the
+#: index is the rule number of kernels/inspect.cl (R_DEPTH ... R_COC)
+RULES: tuple[str, ...] = RULE_NAMES
+
+#: the field each rule reads (``coc``: the depth)
+RULE_FIELD = {name: ("depth" if name == "coc" else name) for name in RULES}
 
 # result slots of kernels/inspect.cl
 _NRULE = len(RULES)
@@ -136,6 +146,9 @@ class Inspect:
             MISS_DEPTH=_hex_f32(MISS_DEPTH),
             POS_TOL=_hex_f32(POSITION_TOLERANCE),
             LENS_R2_MAX=float.hex((1 + LENS_TOLERANCE) ** 2),  # double, as validate()
+            MIN_DEPTH=_hex_f32(MIN_DEPTH),
+            COLOR_MAX=_hex_f32(COLOR_MAX),
+            MOTION_MAX=_hex_f32(MOTION_MAX),
         )
         self.kernel = get_kernel(context, "inspect", "inspect_samples", defines)
         self.clear = get_kernel(context, "inspect", "inspect_clear", defines)
@@ -163,11 +176,17 @@ class Inspect:
         return n
 
     def __call__(self, queue: cl.CommandQueue, buffers, height: int, width: int, spp: int,
-                 coc: tuple[float, float], wait_for=None) -> cl.Event:
-        """Enqueue the clear and the reduction; returns the reduction's event (no waits)."""
+                 coc: tuple[float, float], wait_for=None,
+                 allow_negative: bool = False) -> cl.Event:
+        """Enqueue the clear and the reduction; returns the reduction's event (no waits).
+        ``allow_negative``: the colour rule accepts ``[-COLOR_MAX, COLOR_MAX]``."""
         n = self.check(buffers, height, width, spp)
         with np.errstate(over="ignore", invalid="ignore"):
             c0, c1 = np.float32(coc[0]), np.float32(coc[1])
+        model = CocModel(c0=coc[0], c1=coc[1])
+        coc_lo = (coc_min_depth(float(coc[0]), float(coc[1]))
+                  if coc_model_error(model) is None else np.float32(0))
+        color_lo = np.float32(-COLOR_MAX if allow_negative else 0.0)
         args = [buffers[name] if name in self.fields else None
                 for name in ("depth", "color", "position", "lens", "time", "motion")]
         self.clear.set_args(self.result)
@@ -175,7 +194,8 @@ class Inspect:
         wm, wsh = udiv_magic(int(width))
         sm, ssh = udiv_magic(int(spp))
         self.kernel.set_args(*args, np.uint32(n), np.uint32(width), np.uint32(wm),
-                             np.uint32(wsh), np.uint32(sm), np.uint32(ssh), c0, c1, self.result)
+                             np.uint32(wsh), np.uint32(sm), np.uint32(ssh), c0, c1, color_lo,
+                             np.float32(coc_lo), self.result)
         chunk = self.local_size * self.items
         groups = -(-n // chunk)
         return cl.enqueue_nd_range_kernel(queue, self.kernel, (groups * self.local_size,),
@@ -184,20 +204,21 @@ class Inspect:
     def read(self, queue: cl.CommandQueue, wait_for=None) -> dict:
         """The last call's result (blocking read of ``NSLOT`` uints).
 
-        ``first_bad`` / ``bad_count``: per present rule, the smallest bad linear sample index
-        (``None`` if none) and the number of bad samples; ``max_abs_coc``,
+        ``first_bad`` / ``bad_count``: per present rule (``coc`` always: it reads the
+        depth), the smallest bad linear sample index (``None`` if none) and the number of
+        bad samples; ``max_abs_coc``,
         ``max_abs_motion`` (0 without motion), ``min_depth`` / ``max_depth`` over hits (both
         ``inf`` without hits) and ``hits`` (samples with ``depth < MISS_DEPTH``).
         """
         raw = np.empty(NSLOT, np.uint32)
         cl.enqueue_copy(queue, raw, self.result, wait_for=wait_for, is_blocking=True)
         raw = [int(v) for v in raw]
-        rules = [r for r, (name, _) in enumerate(RULES) if name in self.fields]
+        rules = [r for r, name in enumerate(RULES) if RULE_FIELD[name] in self.fields]
         hits = raw[_S_HITS]
         return {
-            "first_bad": {RULES[r][0]: (None if raw[_S_FIRST + r] == _NONE
-                                        else raw[_S_FIRST + r]) for r in rules},
-            "bad_count": {RULES[r][0]: raw[_S_COUNT + r] for r in rules},
+            "first_bad": {RULES[r]: (None if raw[_S_FIRST + r] == _NONE
+                                     else raw[_S_FIRST + r]) for r in rules},
+            "bad_count": {RULES[r]: raw[_S_COUNT + r] for r in rules},
             "max_abs_coc": _bits_to_float(raw[_S_COC]),
             "max_abs_motion": _bits_to_float(raw[_S_MOTION]),
             "min_depth": _order_key_to_float(raw[_S_DMIN]) if hits else math.inf,
@@ -226,43 +247,46 @@ def _read_sample(queue, buf: cl.Buffer, name: str, index: int):
     return out.tolist() if FIELDS[name] else out[0].tolist()
 
 
-def _raise_first_bad(queue, buffers, result: dict, width: int, spp: int) -> None:
-    for name, what in RULES:
+def _raise_first_bad(queue, buffers, result: dict, width: int, spp: int,
+                     coc: tuple[float, float], allow_negative: bool) -> None:
+    """The error validate() raises: the value rules in order, the coefficients, the CoC."""
+    model = CocModel(c0=coc[0], c1=coc[1])
+    for name in RULES:
+        if name == "coc":
+            error = coc_model_error(model)
+            if error is not None:
+                raise ValueError(error)
         count = result["bad_count"].get(name, 0)
         if not count:
             continue
         index = result["first_bad"][name]
-        value = _read_sample(queue, buffers[name], name, index)
+        field = RULE_FIELD[name]
+        value = _read_sample(queue, buffers[field], field, index)
         pixel, s = divmod(index, spp)
         py, px = divmod(pixel, width)
-        raise ValueError(
-            f"{name}: sample (y={py}, x={px}, i={s}) {what} {value} "
-            f"({count} bad sample{'s' if count != 1 else ''})"
-        )
+        raise ValueError(bad_sample_message(name, (py, px, s), count, value, allow_negative,
+                                            model))
 
 
 def inspect_device(queue: cl.CommandQueue, buffers, height: int, width: int, spp: int,
                    coc: tuple[float, float], validate: bool = True,
-                   wait_for=None) -> FrameInfo:
+                   wait_for=None, allow_negative: bool = False) -> FrameInfo:
     """:class:`FrameInfo` of a frame on the device (``buffers``: field name -> cl.Buffer).
 
     The fields present are the keys of ``buffers`` (``depth`` required). With ``validate``,
-    raises the ``ValueError`` that ``SampleBuffer.validate()`` raises for the same frame
-    (rules of absent fields skipped; the coc coefficients must be finite). Blocks until the
-    small result is read back; the pass is cached per (context, fields).
+    raises the ``ValueError`` that ``SampleBuffer.validate(allow_negative)`` raises for the
+    same frame (rules of absent fields skipped; the coc coefficients are always checked).
+    Blocks until the small result is read back; the pass is cached per (context, fields).
     """
     fields = normalise_fields(buffers)
     height, width, spp = int(height), int(width), int(spp)
     with _lock:
         pass_ = _get_pass(queue.context, fields)
-        ev = pass_(queue, buffers, height, width, spp, coc, wait_for=wait_for)
+        ev = pass_(queue, buffers, height, width, spp, coc, wait_for=wait_for,
+                   allow_negative=allow_negative)
         result = pass_.read(queue, wait_for=[ev])
     if validate:
-        _raise_first_bad(queue, buffers, result, width, spp)
-        c0, c1 = coc
-        if not (np.isfinite(c0) and np.isfinite(c1)):
-            raise ValueError(f"coc_model: coefficients must be finite, got "
-                             f"{CocModel(c0=c0, c1=c1)}")
+        _raise_first_bad(queue, buffers, result, width, spp, coc, bool(allow_negative))
     n = height * width * spp
     return FrameInfo(
         width=width,

@@ -27,10 +27,46 @@ from .samples import FIELDS, FrameInfo, SampleBuffer
 
 @dataclass(frozen=True)
 class LocalSize:
-    """A pass's launch configuration: local size, or ``None`` for "runtime chooses"."""
+    """A pass's launch configuration: local size, or ``None`` for "runtime chooses".
+
+    ``x`` and ``y`` are positive integers (``bool`` and ``float`` refused; NumPy integers
+    are stored as ``int``), ``x`` may be ``None`` (then ``y`` is unused). Values beyond a
+    device's limits are refused by :meth:`check` when a pass is built for that device.
+    """
 
     x: int | None = 16
     y: int = 4
+
+    def __post_init__(self):
+        from .knobs import INT32_MAX, check_int
+
+        if self.x is not None:
+            object.__setattr__(self, "x", check_int("LocalSize.x", self.x, 1, INT32_MAX))
+        object.__setattr__(self, "y", check_int("LocalSize.y", self.y, 1, INT32_MAX))
+
+    def check(self, device: cl.Device, pass_name: str, kernel: cl.Kernel | None = None
+              ) -> None:
+        """Refuse, with a ``ValueError`` naming the pass, the size and the limit, a local size
+        the device cannot launch: beyond its max work-item sizes, its max work-group size
+        or (given the built ``kernel``) the kernel's own work-group limit."""
+        if self.x is None:
+            return
+        x, y = self.x, self.y
+        dev = device.name.strip()
+        items = tuple(device.max_work_item_sizes)
+        for axis, v, lim in (("x", x, items[0]), ("y", y, items[1] if len(items) > 1 else 1)):
+            if v > lim:
+                raise ValueError(f"{pass_name}: local size {x}x{y}: {axis} = {v} exceeds the "
+                                 f"device's max work-item size {lim} in {axis} ({dev}; "
+                                 f"max work-item sizes {list(items)})")
+        limit, what = device.max_work_group_size, "the device's max work-group size"
+        if kernel is not None:
+            limit = min(limit, kernel.get_work_group_info(
+                cl.kernel_work_group_info.WORK_GROUP_SIZE, device))
+            what = "the max work-group size of the built kernel"
+        if x * y > limit:
+            raise ValueError(f"{pass_name}: local size {x}x{y} = {x * y} work-items exceeds "
+                             f"{what}, {limit} ({dev})")
 
     def for_range(self, width: int, height: int) -> tuple[tuple[int, int], tuple | None]:
         """(global, local) for a 2D range covering ``width x height``."""
@@ -126,13 +162,18 @@ class DeviceSamples:
             have = sorted(self.buffers)
             raise KeyError(f"field {name!r} was not uploaded (have {have})") from None
 
-    def inspect(self, queue: cl.CommandQueue, validate: bool = True, wait_for=None
-                ) -> FrameInfo:
-        """Validate and describe the samples with one pass on the device; sets ``info``."""
+    def inspect(self, queue: cl.CommandQueue, validate: bool = True, wait_for=None,
+                allow_negative: bool = False) -> FrameInfo:
+        """Validate and describe the samples with one pass on the device; sets ``info``.
+
+        ``allow_negative`` accepts negative colours (as ``SampleBuffer.validate``); a
+        pipeline called without ``info`` validates with the default, so a frame with
+        negative radiance is inspected here first."""
         from .inspect import inspect_device
 
         self.info = inspect_device(queue, self.buffers, self.height, self.width, self.spp,
-                                   self.coc, validate=validate, wait_for=wait_for)
+                                   self.coc, validate=validate, wait_for=wait_for,
+                                   allow_negative=allow_negative)
         return self.info
 
 
@@ -431,13 +472,15 @@ def _knob_key(knobs: dict) -> tuple:
 
 
 def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = None,
-        **knobs) -> Reconstruction:
+        allow_negative: bool = False, **knobs) -> Reconstruction:
     """Upload, validate and inspect on the device, plan, reconstruct and read back.
 
     Frame after frame of one method and device, the device buffers are reused and the plan
     too while the frame's description is unchanged; any other frame is planned afresh
     (kernels come from the build cache), so the image is always that of a plan made for this
-    frame. Invalid samples raise the ``ValueError`` of :meth:`SampleBuffer.validate`.
+    frame. Invalid samples raise the ``ValueError`` of
+    :meth:`SampleBuffer.validate(allow_negative) <SampleBuffer.validate>`; with
+    ``allow_negative`` negative radiance is accepted and every method is linear in it.
     """
     if not isinstance(buf, SampleBuffer):
         raise TypeError(f"buf must be a SampleBuffer, got {type(buf).__name__}")
@@ -452,7 +495,7 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     samples = DeviceSamples.upload(dev.queue, buf, FIELDS,
                                    into=None if sess is None else sess.samples)
     t1 = time.perf_counter()
-    info = samples.inspect(dev.queue)
+    info = samples.inspect(dev.queue, allow_negative=allow_negative)
     t2 = time.perf_counter()
     if sess is not None and sess.pipe.info == info:
         pipe, plan_ms = sess.pipe, 0.0
@@ -482,7 +525,7 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
 
 
 def reconstruct(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = None,
-                **knobs) -> np.ndarray:
+                allow_negative: bool = False, **knobs) -> np.ndarray:
     """Reconstruct a frame: the (H, W, 3) float32 linear image.
 
     Parameters
@@ -493,7 +536,10 @@ def reconstruct(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Dev
         ``"box"`` (more as methods land: see ``clrecon.pipeline.METHODS``).
     device : int, str, Device or None
         See :func:`clrecon.device.get_device`.
+    allow_negative : bool
+        Accept negative colours (validation refuses them by default); every method is
+        linear in the colour, so negative radiance comes out as such.
     **knobs
         Method-specific settings; unknown names raise ``TypeError``.
     """
-    return run(buf, method, device, **knobs).image
+    return run(buf, method, device, allow_negative, **knobs).image

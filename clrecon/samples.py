@@ -16,9 +16,32 @@ motion     (H, W, S, 2)   pinhole screen displacement (pixels) from t=0 to t=1
 The thin-lens model is :class:`clrecon.camera.CocModel`; the centre of a sample (its
 reprojection to ``(u, v, t) = (0, 0, 0.5)``) is
 ``position - coc(depth) * lens - (time - 0.5) * motion``.
+
+Value bounds (:meth:`SampleBuffer.validate` on the host, :mod:`clrecon.inspect` on the
+device, same rules and messages), chosen so that no kernel overflows float32 on a valid
+frame:
+
+* colour: every channel finite and in ``[0, COLOR_MAX]``, ``COLOR_MAX = 1e30`` (compared
+  as float32); ``allow_negative=True`` accepts ``[-COLOR_MAX, COLOR_MAX]``, and every method
+  is then linear in the colour (a negative radiance comes out negative, as the linear
+  combination of the positive and negative parts). The kernels only ever add colours times
+  weights (no kernel squares a colour); the largest sums (a layered grid pixel, a splat
+  layer image and its convolution pyramid) stay far below the 3.4e8 x ``COLOR_MAX`` that
+  float32 holds.
+* depth: ``>= MIN_DEPTH = 1e-20`` (float32) or a miss; ``1 / depth <= 1e20`` then fits
+  float32 for the methods that place samples in 1/depth (layered buckets, splat layers).
+* CoC: the coefficients ``|c1| <= COC_MAX = 2**20`` px (the CoC of a miss) and
+  ``|c0| <= COC_MAX * 1e30``, and every hit's ``|coc(depth)| <= COC_MAX`` (about a million
+  pixels: wider than any frame, so nothing a frame can show is refused; a sample at the
+  near plane of a defocused camera, ~5e5 px, is valid). CoC squares (layered's statistics)
+  stay below 1e12 per sample.
+* motion: each component in ``[-MOTION_MAX, MOTION_MAX]``, ``MOTION_MAX = 2**16`` px (a
+  length of at most 2**16.5 px, wider than any frame); it bounds splat's motion
+  sub-segments (``ceil(|motion| / 192)`` <= 483 per sample).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,6 +63,17 @@ MISS_DEPTH = 1e30
 
 LENS_TOLERANCE = 1e-4
 POSITION_TOLERANCE = 1e-4
+
+#: largest colour magnitude (float32(1e30)); negative colours need ``allow_negative``
+COLOR_MAX = 1e30
+#: smallest depth of a hit (float32(1e-20))
+MIN_DEPTH = 1e-20
+#: largest |coc| of a sample and |c1| of the model, pixels
+COC_MAX = 2.0**20
+#: largest |c0| of the model (pixels times depth units): COC_MAX at the miss depth
+C0_MAX = COC_MAX * MISS_DEPTH
+#: largest |component| of a motion vector, pixels
+MOTION_MAX = 2.0**16
 
 
 @dataclass(frozen=True)
@@ -195,19 +229,82 @@ class SampleBuffer:
                 raise ValueError(f"{name}: expected a C-contiguous array")
         return self
 
-    def validate(self) -> SampleBuffer:
-        """Check layout (:meth:`check_layout`) and value ranges; raise ``ValueError`` naming
-        the field and, for a value, the first bad sample in C order and the number of bad
-        samples (rules in the order depth, color, motion, time, lens, position).
+    def validate(self, allow_negative: bool = False) -> SampleBuffer:
+        """Check layout (:meth:`check_layout`) and value ranges (module docstring); raise
+        ``ValueError`` naming the field and, for a value, the first bad sample in C order
+        and the number of bad samples.
 
-        Returns ``self`` so that ``buf.validate()`` can be used inline.
+        Order: the rules of depth, color, motion, time, lens and position, then the
+        ``coc_model`` coefficients, then each hit's CoC (rule ``coc``). Negative colours
+        are refused unless ``allow_negative``. Returns ``self`` so that
+        ``buf.validate()`` can be used inline.
         """
         self.check_layout()
         with np.errstate(over="ignore", invalid="ignore"):  # float32 squares may overflow
-            _check_values(self)
-        if not (np.isfinite(self.coc_model.c0) and np.isfinite(self.coc_model.c1)):
-            raise ValueError(f"coc_model: coefficients must be finite, got {self.coc_model}")
+            _check_values(self, bool(allow_negative))
         return self
+
+
+def rule_text(name: str, allow_negative: bool = False) -> str:
+    """What a bad sample of rule ``name`` violates (the middle of its message)."""
+    if name == "color":
+        if allow_negative:
+            return f"must be finite and in [{-COLOR_MAX:g}, {COLOR_MAX:g}], got"
+        return (f"must be finite and in [0, {COLOR_MAX:g}] (negative radiance needs "
+                f"allow_negative=True), got")
+    return _RULE_TEXT[name]
+
+
+def bad_sample_message(name: str, first: tuple[int, int, int], count: int, value,
+                       allow_negative: bool = False, model=None) -> str:
+    """The ``ValueError`` text of rule ``name`` (host and device alike): ``value`` is the
+    first bad sample's value of the field (for ``coc``: its depth; ``model`` gives the
+    CoC)."""
+    py, px, i = first
+    if name == "coc":
+        coc = model.coc(np.array([value], np.float32))[0].tolist()
+        value = f"coc {coc} px at depth {value} with {model}"
+    return (f"{name}: sample (y={py}, x={px}, i={i}) {rule_text(name, allow_negative)} "
+            f"{value} ({count} bad sample{'s' if count != 1 else ''})")
+
+
+def coc_model_error(model) -> str | None:
+    """Why the coefficients of ``model`` are refused (``None``: they are valid)."""
+    if abs(model.c0) <= C0_MAX and abs(model.c1) <= COC_MAX:  # NaN fails
+        return None
+    return (f"coc_model: coefficients must be finite with |c1| <= {COC_MAX:.0f} px and "
+            f"|c0| <= {COC_MAX:.0f} * {MISS_DEPTH:g}, got {model}")
+
+
+@functools.lru_cache(maxsize=256)
+def coc_min_depth(c0: float, c1: float) -> np.float32:
+    """The smallest float32 hit depth whose CoC (``CocModel(c0, c1).coc``, the host
+    formula) satisfies ``|coc| <= COC_MAX``; ``float32(MISS_DEPTH)`` when no hit does.
+
+    For coefficients that :func:`coc_model_error` accepts, a hit ``d`` (``d < MISS_DEPTH``)
+    breaks the CoC bound exactly when ``d < coc_min_depth(c0, c1)``: ``coc`` is monotonic
+    in ``d`` (each rounding step is) and tends to ``c1``, within the bound, on the side of
+    large depths (``c0 / d`` has the sign of ``c0``: ``coc <= c1`` when ``c0 <= 0``,
+    ``coc >= c1`` when ``c0 >= 0``), so only small depths can break it. Found by bisection
+    over the float32 bit patterns (positive floats order like their bits); the device pass
+    compares depths with this one threshold.
+    """
+    model = CocModel(c0, c1)
+    miss = np.float32(MISS_DEPTH)
+
+    def ok(bits: int) -> bool:
+        d = np.array([bits], np.uint32).view(np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):  # subnormal depths: inf
+            return bool(np.abs(model.coc(d))[0] <= COC_MAX)
+
+    lo, hi = 0, int(miss.view(np.uint32))  # ok(hi) taken as true: a miss; ok(0) false
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if ok(mid):
+            hi = mid
+        else:
+            lo = mid
+    return np.array([hi], np.uint32).view(np.float32)[0] if hi > 1 else np.float32(0)
 
 
 def pixel_centres(height: int, width: int, spp: int) -> np.ndarray:
@@ -231,15 +328,26 @@ def pixel_centres(height: int, width: int, spp: int) -> np.ndarray:
 #: samples per block (a few hundred kB per field; the temporaries fit in L2 / L3)
 _BLOCK_SAMPLES = 1 << 16
 
-#: value rules of validate(), in the order they are reported
-_RULES: tuple[tuple[str, str], ...] = (
-    ("depth", "must be positive (inf for a miss), got"),
-    ("color", "must be finite, got"),
-    ("motion", "must be finite, got"),
-    ("time", "must lie in [0, 1], got"),
-    ("lens", "must lie in the unit disk, got"),
-    ("position", "must lie inside its pixel, got"),
-)
+#: value rules of validate(), in the order they are reported (``coc`` after the
+#: coefficients of the model); the colour text depends on ``allow_negative``
+#: (:func:`rule_text`)
+RULE_NAMES: tuple[str, ...] = ("depth", "color", "motion", "time", "lens", "position", "coc")
+
+_RULE_TEXT = {
+    "depth": f"must be at least {MIN_DEPTH:g} (inf for a miss), got",
+    "motion": f"must be finite with components in [{-MOTION_MAX:.0f}, {MOTION_MAX:.0f}] px, "
+              "got",
+    "time": "must lie in [0, 1], got",
+    "lens": "must lie in the unit disk, got",
+    "position": "must lie inside its pixel, got",
+    "coc": f"must have |coc(depth)| <= {COC_MAX:.0f} px, got",
+}
+
+#: the bounds as the rules compare them (float32)
+_MIN_DEPTH32 = np.float32(MIN_DEPTH)
+_COLOR_MAX32 = np.float32(COLOR_MAX)
+_MOTION_MAX32 = np.float32(MOTION_MAX)
+_MISS32 = np.float32(MISS_DEPTH)
 
 _LENS_LIMIT = (1 + LENS_TOLERANCE) ** 2  # float64, as the rule compares
 
@@ -267,15 +375,22 @@ def _pixel_bounds(n: int) -> tuple[np.ndarray, np.ndarray]:
     return p - POSITION_TOLERANCE, p + 1 + POSITION_TOLERANCE
 
 
-def _exact_bad(buf: SampleBuffer, name: str, blk: tuple[int, int, int, int]) -> np.ndarray:
+def _exact_bad(buf: SampleBuffer, name: str, blk: tuple[int, int, int, int],
+               allow_negative: bool = False) -> np.ndarray:
     """The rule ``name`` on one block: a bool mask (y, x, i), the whole-array formula."""
     y0, y1, x0, x1 = blk
     sl = (slice(y0, y1), slice(x0, x1))
     if name == "depth":
+        return ~(buf.depth[sl] >= _MIN_DEPTH32)
+    if name == "coc":
         d = buf.depth[sl]
-        return np.isnan(d) | (d <= 0)
-    if name in ("color", "motion"):
-        return ~np.isfinite(getattr(buf, name)[sl]).all(-1)
+        return (d < _MISS32) & ~(np.abs(buf.coc_model.coc(d)) <= COC_MAX)
+    if name == "color":
+        c = buf.color[sl]
+        ok = (np.abs(c) <= _COLOR_MAX32) if allow_negative else (c >= 0) & (c <= _COLOR_MAX32)
+        return ~ok.all(-1)
+    if name == "motion":
+        return ~(np.abs(buf.motion[sl]) <= _MOTION_MAX32).all(-1)
     if name == "time":
         t = buf.time[sl]
         return ~((t >= 0) & (t <= 1))
@@ -291,14 +406,18 @@ def _exact_bad(buf: SampleBuffer, name: str, blk: tuple[int, int, int, int]) -> 
     return ~((x >= px - tol) & (x <= px + 1 + tol) & (y >= py - tol) & (y <= py + 1 + tol))
 
 
-def _check_values(buf: SampleBuffer) -> None:
-    """The value rules of :meth:`SampleBuffer.validate` (layout already checked).
+def _check_values(buf: SampleBuffer, allow_negative: bool = False) -> None:
+    """The value rules of :meth:`SampleBuffer.validate` (layout already checked), then the
+    model's coefficients, then the CoC rule.
 
     Filters, per block, each exact or conservative (a block that holds a bad sample always
     fails; a good block fails only within a rounding margin of a bound):
 
-    * depth ``min > 0``; time ``min >= 0 and max <= 1``; color, motion ``isfinite``: exact
-      (NaN fails every comparison).
+    * depth ``min >= MIN_DEPTH``; coc ``min >= coc_min_depth(c0, c1)`` (exact for the base
+      model; any other model's CoC is checked sample by sample); time ``min >= 0 and
+      max <= 1``; color ``min >= 0 (or -COLOR_MAX) and max <= COLOR_MAX``; motion
+      ``min >= -MOTION_MAX and max <= MOTION_MAX``: exact (NaN propagates through min and
+      max and fails every comparison).
     * lens: float32 ``u*u + v*v`` (two roundings, relative error < 2**-22) against a float32
       limit 2**-22 below the float64 one; NaN and overflow fail.
     * position: ``d = position - lower`` in float32 has the sign of the exact difference
@@ -306,6 +425,15 @@ def _check_values(buf: SampleBuffer) -> None:
       with ``W`` 2**-22 below the narrowest pixel's ``upper - lower``, implies the upper.
     """
     h, w, s = buf.depth.shape
+    model = buf.coc_model
+    model_error = coc_model_error(model)
+    if model_error is not None:
+        coc_lo = np.float32(0)  # not checked: the coefficients are reported first
+    elif type(model) is CocModel:
+        coc_lo = coc_min_depth(float(model.c0), float(model.c1))
+    else:  # another model's CoC need not be monotonic: every block is checked exactly
+        coc_lo = np.float32(np.inf)
+    color_lo = -_COLOR_MAX32 if allow_negative else np.float32(0)
     blocks = _blocks(h, w, s)
     lo_x, hi_x = _pixel_bounds(w)
     lo_y, hi_y = _pixel_bounds(h)
@@ -318,23 +446,26 @@ def _check_values(buf: SampleBuffer) -> None:
     n = (y1 - y0) * cols * s
     sq = np.empty(2 * n, np.float32)
     r2 = np.empty(n, np.float32)
-    ok3 = np.empty(3 * n, np.bool_)
     # lower x bound of every position value of a row of the block (0 under y); the y bound
     # is subtracted row by row after
     lower = np.zeros((cols, s, 2), np.float32)
     lower[..., 0] = lo_x[:cols, None]
     partial = cols < w  # blocks are runs of pixels of one row: lower is refilled per block
-    suspect: dict[str, list] = {name: [] for name, _ in _RULES}
+    suspect: dict[str, list] = {name: [] for name in RULE_NAMES}
     for blk in blocks:
         y0, y1, x0, x1 = blk
         m = (y1 - y0) * (x1 - x0) * s
-        d = buf.depth[y0:y1, x0:x1]
-        if not d.min() > 0:
+        dmin = buf.depth[y0:y1, x0:x1].min()
+        if not dmin >= _MIN_DEPTH32:
             suspect["depth"].append(blk)
-        for name, k, tmp in (("color", 3, ok3), ("motion", 2, ok3)):
-            a = getattr(buf, name)[y0:y1, x0:x1].reshape(-1)
-            if not np.isfinite(a, out=tmp[:k * m]).all():
-                suspect[name].append(blk)
+        if not dmin >= coc_lo:
+            suspect["coc"].append(blk)
+        c = buf.color[y0:y1, x0:x1]
+        if not (c.min() >= color_lo and c.max() <= _COLOR_MAX32):
+            suspect["color"].append(blk)
+        mo = buf.motion[y0:y1, x0:x1]
+        if not (mo.min() >= -_MOTION_MAX32 and mo.max() <= _MOTION_MAX32):
+            suspect["motion"].append(blk)
         t = buf.time[y0:y1, x0:x1]
         if not (t.min() >= 0 and t.max() <= 1):
             suspect["time"].append(blk)
@@ -351,22 +482,22 @@ def _check_values(buf: SampleBuffer) -> None:
         np.subtract(ydiff, lo_y[y0:y1, None], out=ydiff)
         if not (diff.min() >= 0 and diff.max() <= w_safe):
             suspect["position"].append(blk)
-    for name, what in _RULES:
+    for name in RULE_NAMES:
+        if name == "coc" and model_error is not None:
+            raise ValueError(model_error)
         count, first = 0, None
         for blk in suspect[name]:
-            bad = _exact_bad(buf, name, blk)
+            bad = _exact_bad(buf, name, blk, allow_negative)
             c = int(np.count_nonzero(bad))
             if c and first is None:
                 dy, dx, i = (int(v) for v in np.argwhere(bad)[0])
                 first = (blk[0] + dy, blk[2] + dx, i)
             count += c
         if count:
-            values = getattr(buf, name)[first].tolist()
-            py, px, i = first
-            raise ValueError(
-                f"{name}: sample (y={py}, x={px}, i={i}) {what} {values} "
-                f"({count} bad sample{'s' if count != 1 else ''})"
-            )
+            field_name = "depth" if name == "coc" else name
+            value = getattr(buf, field_name)[first].tolist()
+            raise ValueError(bad_sample_message(name, first, count, value, allow_negative,
+                                                model))
 
 
 def _inspect_arrays(buf: SampleBuffer) -> FrameInfo:

@@ -16,6 +16,10 @@
  *   spp_m, spp_sh             udiv31() magic of S (only position needs W and S)
  *   c0, c1                    coc(w) = c0 / w + c1 in pixels; a miss (w >= MISS_DEPTH, inf
  *                             and NaN included) has coc = c1
+ *   color_lo                  least valid colour channel: 0, or -COLOR_MAX (allow_negative)
+ *   coc_lo                    least hit depth whose CoC is within COC_MAX (host:
+ *                             clrecon.samples.coc_min_depth, exact for the host formula;
+ *                             0 when not checked)
  *   result    uint (NSLOT), cleared by inspect_clear, combined with global atomics:
  *     [S_FIRST + r]  smallest i failing rule r, NONE if none       (atomic_min)
  *     [S_COUNT + r]  number of samples failing rule r              (atomic_add)
@@ -25,15 +29,17 @@
  *     [S_DMAX]       order key of the max hit depth                (atomic_max)
  *     [S_HITS]       number of hits                                (atomic_add)
  *   Rules r, in SampleBuffer.validate() order (the comparisons are the same, NaN fails):
- *     R_DEPTH    !(w > 0)
- *     R_COLOR    any channel not finite
- *     R_MOTION   any component not finite
+ *     R_DEPTH    !(w >= MIN_DEPTH)
+ *     R_COLOR    any channel !(color_lo <= c <= COLOR_MAX)
+ *     R_MOTION   any component !(|m| <= MOTION_MAX)
  *     R_TIME     !(0 <= t <= 1)
  *     R_LENS     !(u^2 + v^2 <= LENS_R2_MAX), computed in double where the device has fp64
  *                (squares of floats are exact in double: one rounding, as NumPy does);
  *                in float otherwise (may differ from the host within an ulp of the bound)
  *     R_POSITION outside [x - POS_TOL, (x + 1) + POS_TOL] x [y - ..., ...], in float with
  *                the same roundings as NumPy's float32 comparisons
+ *     R_COC      w < coc_lo: a hit whose |coc| exceeds COC_MAX (reported by the host after
+ *                the coefficients, which it checks itself)
  *
  * Max and min of floats by integer atomics: non-negative IEEE floats (|coc|, |motion|)
  * order like their bit patterns read as uint, so atomic_max on the bits is a float max;
@@ -62,7 +68,8 @@
  * Tunables: WG_SIZE (work-group size: reqd_work_group_size and the local array), ITEMS
  * (samples per work-item), CONTIGUOUS (the visiting order above). Compile-time (set by
  * clrecon/inspect.py): HAS_COLOR, HAS_POSITION, HAS_LENS, HAS_TIME, HAS_MOTION (0/1),
- * MISS_DEPTH, POS_TOL (exact float literals), LENS_R2_MAX (exact double literal).
+ * MISS_DEPTH, POS_TOL, MIN_DEPTH, COLOR_MAX, MOTION_MAX (exact float literals), LENS_R2_MAX
+ * (exact double literal).
  */
 #include "common.h"
 
@@ -99,14 +106,24 @@
 #ifndef LENS_R2_MAX
 #define LENS_R2_MAX 0x1.000d1b9c68abep+0  // (1 + 1e-4)^2 in double, LENS_TOLERANCE
 #endif
+#ifndef MIN_DEPTH
+#define MIN_DEPTH 0x1.79ca1p-67f         // float32(1e-20), clrecon.samples.MIN_DEPTH
+#endif
+#ifndef COLOR_MAX
+#define COLOR_MAX 0x1.93e594p+99f        // float32(1e30), clrecon.samples.COLOR_MAX
+#endif
+#ifndef MOTION_MAX
+#define MOTION_MAX 0x1p+16f              // clrecon.samples.MOTION_MAX
+#endif
 
-#define NRULE 6
+#define NRULE 7
 #define R_DEPTH 0
 #define R_COLOR 1
 #define R_MOTION 2
 #define R_TIME 3
 #define R_LENS 4
 #define R_POSITION 5
+#define R_COC 6
 #define S_FIRST 0
 #define S_COUNT NRULE
 #define S_COC (2 * NRULE)
@@ -119,7 +136,8 @@
 
 /* rules the build checks: bit r set for rule r */
 #define RULE_MASK (1 | (HAS_COLOR << R_COLOR) | (HAS_MOTION << R_MOTION) | \
-                   (HAS_TIME << R_TIME) | (HAS_LENS << R_LENS) | (HAS_POSITION << R_POSITION))
+                   (HAS_TIME << R_TIME) | (HAS_LENS << R_LENS) | (HAS_POSITION << R_POSITION) | \
+                   (1 << R_COC))
 
 #if (WG_SIZE & (WG_SIZE - 1)) != 0 || WG_SIZE < 32
 #error "WG_SIZE must be a power of two >= 32"
@@ -131,9 +149,6 @@
 #else
 #define INSPECT_LENS_FP64 0
 #endif
-
-/* 1 where v is inf or NaN (exponent all ones): independent of any fast-math flag. */
-inline uint not_finite(float v) { return (as_uint(v) & 0x7f800000u) == 0x7f800000u; }
 
 /* Bits of |v| for a bit-pattern max; NaN gives 0 (never wins). */
 inline uint abs_bits(float v)
@@ -201,7 +216,8 @@ void inspect_samples(__global const float *depth, __global const float *color,
                      __global const float *time, __global const float *motion,
                      const uint n, const uint width, const uint width_m,
                      const uint width_sh, const uint spp_m, const uint spp_sh,
-                     const float c0, const float c1, __global uint *result)
+                     const float c0, const float c1, const float color_lo,
+                     const float coc_lo, __global uint *result)
 {
     __local uint red[NSLOT * WG_SIZE];
     const uint l = get_local_id(0);
@@ -224,7 +240,8 @@ void inspect_samples(__global const float *depth, __global const float *color,
     for (uint k = 0; k < kn; ++k) {
         const uint i = start + k * step;
         const float w = depth[i];
-        RULE(R_DEPTH, !(w > 0.0f));
+        RULE(R_DEPTH, !(w >= MIN_DEPTH));
+        RULE(R_COC, w < coc_lo);
         const int hit = w < MISS_DEPTH;
         const float coc = hit ? c0 / w + c1 : c1;
         coc_bits = max(coc_bits, abs_bits(coc));
@@ -234,11 +251,12 @@ void inspect_samples(__global const float *depth, __global const float *color,
         dmax = max(dmax, hit ? key : 0u);
 #if HAS_COLOR
         const float3 c = load3(color, i);
-        RULE(R_COLOR, not_finite(c.x) | not_finite(c.y) | not_finite(c.z));
+        RULE(R_COLOR, !(c.x >= color_lo && c.x <= COLOR_MAX && c.y >= color_lo &&
+                        c.y <= COLOR_MAX && c.z >= color_lo && c.z <= COLOR_MAX));
 #endif
 #if HAS_MOTION
         const float2 m = load2(motion, i);
-        RULE(R_MOTION, not_finite(m.x) | not_finite(m.y));
+        RULE(R_MOTION, !(fabs(m.x) <= MOTION_MAX && fabs(m.y) <= MOTION_MAX));
         motion_bits = max(motion_bits, abs_bits(length2(m.x, m.y)));
 #endif
 #if HAS_TIME

@@ -35,7 +35,7 @@ def _ref_first_bad(name, bad, values, what):
         )
 
 
-def ref_validate(self):
+def ref_validate(self, allow_negative=False):
     if self.depth.ndim != 3:
         raise ValueError(f"depth: expected shape (H, W, S), got {self.depth.shape}")
     hws = self.depth.shape
@@ -45,11 +45,18 @@ def ref_validate(self):
         arr = getattr(self, name)
         if arr.shape != hws + tail:
             raise ValueError(f"{name}: expected shape {hws + tail}, got {arr.shape}")
-    _ref_first_bad("depth", np.isnan(self.depth) | (self.depth <= 0), self.depth,
-                   "must be positive (inf for a miss), got")
-    _ref_first_bad("color", ~np.isfinite(self.color).all(-1), self.color, "must be finite, got")
-    _ref_first_bad("motion", ~np.isfinite(self.motion).all(-1), self.motion,
-                   "must be finite, got")
+    _ref_first_bad("depth", ~(self.depth >= F32(1e-20)), self.depth,
+                   "must be at least 1e-20 (inf for a miss), got")
+    c = self.color
+    if allow_negative:
+        _ref_first_bad("color", ~(np.abs(c) <= F32(1e30)).all(-1), c,
+                       "must be finite and in [-1e+30, 1e+30], got")
+    else:
+        _ref_first_bad("color", ~((c >= 0) & (c <= F32(1e30))).all(-1), c,
+                       "must be finite and in [0, 1e+30] (negative radiance needs "
+                       "allow_negative=True), got")
+    _ref_first_bad("motion", ~(np.abs(self.motion) <= 65536).all(-1), self.motion,
+                   "must be finite with components in [-65536, 65536] px, got")
     _ref_first_bad("time", ~((self.time >= 0) & (self.time <= 1)), self.time,
                    "must lie in [0, 1], got")
     r2 = (self.lens.astype(np.float64) ** 2).sum(-1)
@@ -62,8 +69,19 @@ def ref_validate(self):
     tol = POSITION_TOLERANCE
     outside = ~((x >= px - tol) & (x <= px + 1 + tol) & (y >= py - tol) & (y <= py + 1 + tol))
     _ref_first_bad("position", outside, self.position, "must lie inside its pixel, got")
-    if not (np.isfinite(self.coc_model.c0) and np.isfinite(self.coc_model.c1)):
-        raise ValueError(f"coc_model: coefficients must be finite, got {self.coc_model}")
+    m = self.coc_model
+    if not (abs(m.c0) <= 2.0**20 * 1e30 and abs(m.c1) <= 2.0**20):
+        raise ValueError(f"coc_model: coefficients must be finite with |c1| <= 1048576 px and "
+                         f"|c0| <= 1048576 * 1e+30, got {m}")
+    coc = m.coc(self.depth)
+    bad = (self.depth < MISS_DEPTH) & ~(np.abs(coc) <= 2.0**20)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        count = int(bad.sum())
+        raise ValueError(
+            f"coc: sample (y={idx[0]}, x={idx[1]}, i={idx[2]}) must have |coc(depth)| <= "
+            f"1048576 px, got coc {coc[idx].tolist()} px at depth {self.depth[idx].tolist()} "
+            f"with {m} ({count} bad sample{'s' if count != 1 else ''})")
     return self
 
 
@@ -194,13 +212,18 @@ def _boundary_values(name: str, y: int, x: int, rng):
     """Values at, just inside and just outside each bound of ``name`` at pixel (y, x)."""
     nxt = np.nextafter
     if name == "depth":
+        lo = F32(1e-20)
+        coc_lo = smp.coc_min_depth(MODEL.c0, MODEL.c1)  # |coc| = 2**20 px of MODEL
         return [F32(0.0), F32(-0.0), nxt(F32(0), F32(1)), F32(-1e-30), F32(np.nan), F32(-np.inf),
-                F32(np.inf), F32(3e38), F32(1e-40)]
+                F32(np.inf), F32(3e38), F32(1e-40), lo, nxt(lo, F32(0)), nxt(lo, F32(1)),
+                coc_lo, nxt(coc_lo, F32(0)), nxt(coc_lo, F32(1)), F32(1e-6)]
     if name in ("color", "motion"):
         k = FIELDS[name][0]
-        vals = [np.inf, -np.inf, np.nan, 3.4e38, -3.4e38, 1e-45]
+        top = F32(1e30) if name == "color" else F32(65536)
+        vals = [np.inf, -np.inf, np.nan, 3.4e38, -3.4e38, 1e-45, -1e-45, -0.0, top, -top,
+                nxt(top, F32(np.inf)), nxt(top, F32(0)), -nxt(top, F32(np.inf)), -1.0]
         return [np.array([rng.choice(vals) if j == rng.integers(k) else 0.5 for j in range(k)],
-                         F32) for _ in range(6)]
+                         F32) for _ in range(12)]
     if name == "time":
         return [F32(0.0), F32(-0.0), F32(1.0), nxt(F32(0), F32(-1)), nxt(F32(1), F32(2)),
                 F32(np.nan), F32(np.inf), F32(-1e-45)]

@@ -77,6 +77,7 @@ import math
 
 import pyopencl as cl
 
+from ..knobs import check_bool, check_choice, check_float, check_int
 from ..pipeline import DeviceSamples, LocalSize, Pipeline, register
 from ..plan import Bound, Plan, Step, coc_bound, motion_bound, shape_bounds
 from .composite import Composite
@@ -93,6 +94,12 @@ FILTERS = ("sheared", "mip", "rotated")
 SPLATS = ("nearest", "bilinear")
 NBUCKETS = 32
 STATIC_COC = 0.5  # px: below this everywhere (and no motion) the frame is reconstructed by box
+#: knob ranges (beyond them nothing useful happens, or float32 kernel arguments overflow)
+MAX_MERGE = 1e6  # merge_threshold in [-1e6, 1e6]; < 0: no merging
+MAX_SIGMA_X = 64.0  # px: sigma_x in (0, 64]
+MAX_GUARD = 256  # grid px: guard in [2, 256]
+MIN_BUCKET_COC, MAX_BUCKET_COC = 1e-3, 1e3  # px: bucket_coc in [1e-3, 1e3]
+MAX_REACH = 1024  # px: reach in [1, 1024]
 
 
 def _guard(info, sigma_x: float, guard: int) -> int:
@@ -114,45 +121,42 @@ class LayeredPipeline(Pipeline):
                  recursions: int = 3, specialize: bool = True, reach: int = 96,
                  subsample: int | bool = True, mip_images: bool | None = None):
         super().__init__(context, info)
-        if mode not in MODES:
-            raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
+        mode = check_choice("mode", mode, MODES)
+        filter = check_choice("filter", filter, FILTERS, none_ok=True)
         filter = filter or ("rotated" if mode == "lrdm" else "sheared")
-        if filter not in FILTERS:
-            raise ValueError(f"filter: must be one of {FILTERS}, got {filter!r}")
-        if splat not in SPLATS:
-            raise ValueError(f"splat: must be one of {SPLATS}, got {splat!r}")
-        tile = int(tile)
-        if tile < 2 or tile > 128 or tile & (tile - 1):
+        splat = check_choice("splat", splat, SPLATS)
+        tile = check_int("tile", tile, 2, 128, what="(a power of two)")
+        if tile & (tile - 1):
             raise ValueError(f"tile: must be a power of two in [2, 128], got {tile}")
         if stats_stride is None:
             stats_stride = 1 if mode == "lrdm" else 3 * info.spp
-        if int(stats_stride) < 1:
-            raise ValueError(f"stats_stride: must be >= 1, got {stats_stride}")
+        stats_stride = check_int("stats_stride", stats_stride, 1, 2**31, hi_open=True)
         if merge_threshold is None:
             merge_threshold = -1.0 if mode == "lrdm" else 0.1
-        if not sigma_x > 0:
-            raise ValueError(f"sigma_x: must be > 0, got {sigma_x}")
-        if not 1 <= int(max_partitions) <= 16:
-            raise ValueError(f"max_partitions: must be in [1, 16], got {max_partitions}")
-        if int(guard) < 2:
-            raise ValueError(f"guard: must be >= 2, got {guard}")
-        if not 1 <= int(recursions) <= 4:
-            raise ValueError(f"recursions: must be in [1, 4], got {recursions}")
+        merge_threshold = check_float("merge_threshold", merge_threshold, -MAX_MERGE,
+                                      MAX_MERGE, what="(< 0: no merging)")
+        sigma_x = check_float("sigma_x", sigma_x, 0.0, MAX_SIGMA_X, lo_open=True)
+        max_partitions = check_int("max_partitions", max_partitions, 1, 16)
+        guard = check_int("guard", guard, 2, MAX_GUARD)
+        bucket_coc = check_float("bucket_coc", bucket_coc, MIN_BUCKET_COC, MAX_BUCKET_COC)
+        seed = check_int("seed", seed, 0, 2**32, hi_open=True)
+        has_motion = check_bool("has_motion", has_motion, none_ok=True)
+        recursions = check_int("recursions", recursions, 1, 4)
+        specialize = check_bool("specialize", specialize)
+        reach = check_int("reach", reach, 1, MAX_REACH)
+        subsample_cap(subsample)  # true, false or an int in [1, 64]
+        mip_images = check_bool("mip_images", mip_images, none_ok=True)
         self.recursions = int(recursions)
         self.subsample = subsample_cap(subsample)
         if mip_images is not None and filter != "mip":
             raise ValueError(f"mip_images: applies to filter='mip' only, not {filter!r}")
         self.mip_images = None  # filter="mip": whether it reads the image atlas
-        if not bucket_coc > 0:
-            raise ValueError(f"bucket_coc: must be > 0, got {bucket_coc}")
         self.mode, self.filter, self.splat = mode, filter, splat
         self.stats_stride, self.merge_threshold = int(stats_stride), float(merge_threshold)
         self.sigma_x, self.bucket_coc, self.seed = float(sigma_x), float(bucket_coc), int(seed)
         motion = info.has_motion if has_motion is None else bool(has_motion)
         # the guard band need not exceed the largest blur the frame can have
         gmax = _guard(info, sigma_x, int(guard))
-        if int(reach) < 1:
-            raise ValueError(f"reach: must be >= 1, got {reach}")
         self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
                           spp=info.spp, has_motion=motion, reach_max=int(reach))
         if not motion:  # defocus only: shutter time and motion are never read

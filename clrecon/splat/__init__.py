@@ -29,6 +29,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..box import Box, box_plan
+from ..knobs import check_bool, check_choice, check_float, check_int
 from ..pipeline import Pipeline, register
 from ..plan import Bound, Plan, Step, coc_bound, motion_bound, shape_bounds
 from ..samples import FIELDS
@@ -38,13 +39,17 @@ from .composite import Composite
 from .integrate import Integrate
 from .psf import MODELS
 from .reference import PYRAMIDS
-from .splat import Splat
+from .splat import SCATTERS, Splat
 from .tables import DeviceTable, host_table
 
 log = logging.getLogger(__name__)
 PSF_MODELS = tuple(MODELS)
 #: default ``max_error``: spreadlet L1 error above which a cell is drawn densely
 MAX_ERROR = 0.05
+#: knob ranges: ``layers`` in [1, 64] (each layer is three full-frame float4 images);
+#: ``fast_ratio`` in [0, 1e6] (beyond any PSF's dense/sparse size ratio: every cell dense)
+MAX_LAYERS = 64
+MAX_FAST_RATIO = 1e6
 
 
 @register
@@ -56,16 +61,14 @@ class SplatPipeline(Pipeline):
                  pyramid: str = "f7", dense: bool = False, fast_ratio: float = 1.0,
                  max_error: float = MAX_ERROR, scatter: str | None = None):
         super().__init__(context, info)
-        if psf is not None and psf not in MODELS:
-            raise ValueError(f"psf: expected one of {sorted(MODELS)}, got {psf!r}")
-        if pyramid not in PYRAMIDS:
-            raise ValueError(f"pyramid: expected one of {sorted(PYRAMIDS)}, got {pyramid!r}")
-        if int(layers) < 1:
-            raise ValueError(f"layers: must be >= 1, got {layers}")
-        if not fast_ratio >= 0:
-            raise ValueError(f"fast_ratio: must be >= 0, got {fast_ratio}")
-        if not max_error >= 0:
-            raise ValueError(f"max_error: must be >= 0 (inf: never), got {max_error}")
+        psf = check_choice("psf", psf, sorted(MODELS), none_ok=True)
+        pyramid = check_choice("pyramid", pyramid, sorted(PYRAMIDS))
+        layers = check_int("layers", layers, 1, MAX_LAYERS)
+        dense = check_bool("dense", dense)
+        fast_ratio = check_float("fast_ratio", fast_ratio, 0.0, MAX_FAST_RATIO)
+        max_error = check_float("max_error", max_error, 0.0, allow_inf=True,
+                                what="(inf: never drawn densely for its error)")
+        scatter = check_choice("scatter", scatter, SCATTERS, none_ok=True)
         self.psf = psf or ("combined" if info.has_motion else "simplelens")
         self.psf_source = "api" if psf else "inspect"
         self.dense, self.fast_ratio = bool(dense), float(fast_ratio)

@@ -27,9 +27,13 @@ agree).
 """
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pyopencl as cl
 
 from ..box import Box, box_plan
+from ..knobs import INT32_MAX, KnobTypeError, check_bool, check_choice, check_float, check_int
 from ..pipeline import Pipeline, register
 from ..plan import Plan, Step, coc_bound, motion_bound, shape_bounds
 from ..tune.runtime import tuned
@@ -37,6 +41,7 @@ from ..tune.specs import DEFAULTS, local_size_of, make_resolve
 from .block import SweepBlock, block_local_bytes
 from .layers import SweepLayerResolve, SweepLayerSums
 from .prepare import SweepPrepare
+from .resolve import TILE_MERGES, tile_local_bytes
 
 
 def default_sort(context, scales: int, spp: int) -> str:
@@ -44,6 +49,98 @@ def default_sort(context, scales: int, spp: int) -> str:
     dev = context.devices[0]
     fits = spp <= 255 and block_local_bytes(scales, spp) <= dev.local_mem_size
     return "block" if dev.type & cl.device_type.CPU and fits else "tile"
+
+
+#: largest ``diameter_scale``: the scaled diameters stay far inside the float32 range
+MAX_DIAMETER_SCALE = 1e6
+#: float32 weights must stay at or above the smallest normal float32, 2^-126
+_WEIGHT_EXP2_MIN = 126
+#: a pixel's own samples get a weight of at least 1 / (K * spp): K = 25 (the 5x5 box of
+#: two scales) or 49 (the 7x7 box of four scales)
+_WEIGHT_BOX = {2: 25, 4: 49}
+
+
+def max_exponent(scales: int, spp: int) -> float:
+    """The largest ``exponent`` whose weights stay finite for ``scales`` at ``spp``.
+
+    A pixel's own samples get a weight of at least ``w = 1 / (K spp)`` (``K`` = 25 with two
+    scales, 49 with four: the widest box), so ``w ** exponent`` is a normal float32
+    (``>= 2^-126``) for ``exponent <= 126 / log2(K spp)``: 16.5 at 8 spp with two scales
+    (14.6 with four), 12.8 (11.6) at 32 spp. Beyond it every weight of a frame whose samples
+    are all in the widest scale flushes to zero on a device without float32 denormals, and
+    the image is NaN (measured on PoCL, which keeps denormals: 0 NaN pixels at 1.02x this
+    bound, all NaN beyond ``149 / log2(K spp)``, the denormal floor).
+    """
+    k = _WEIGHT_BOX[scales] * max(int(spp), 1)
+    return math.floor(100 * _WEIGHT_EXP2_MIN / math.log2(k)) / 100
+
+
+def _largest(fits, hi: int) -> int:
+    """The largest n in [1, hi] with ``fits(n)`` (``fits`` monotone), 0 when none."""
+    best, lo = 0, 1
+    while lo <= hi:
+        mid = (lo + hi) // 2
+        if fits(mid):
+            best, lo = mid, mid + 1
+        else:
+            hi = mid - 1
+    return best
+
+
+def check_knobs(context, info, scales, dof_layers, exponent, smooth_motion, diameter_scale,
+                sort, tile, tile_merge, group, specialize) -> tuple:
+    """Every knob of :class:`SweepPipeline` checked (type and range; see
+    :mod:`clrecon.knobs`), in the signature's order."""
+    if isinstance(scales, (bool, np.bool_)) or not isinstance(scales, (int, np.integer)):
+        raise KnobTypeError(f"scales: must be 2 or 4, got {scales!r} ({type(scales).__name__})")
+    if scales not in (2, 4):
+        raise ValueError(f"scales: must be 2 or 4, got {scales!r}")
+    scales = int(scales)
+    dof_layers = check_bool("dof_layers", dof_layers)
+    e_max = max_exponent(scales, info.spp)
+    exponent = check_float("exponent", exponent, 0.0, e_max, lo_open=True,
+                           what=f"for {scales} scales at {info.spp} spp (float32 weights "
+                                f">= 1/({_WEIGHT_BOX[scales]} spp) raised to it must stay "
+                                f">= 2^-126)")
+    smooth_motion = check_bool("smooth_motion", smooth_motion, none_ok=True)
+    diameter_scale = check_float("diameter_scale", diameter_scale, 0.0, MAX_DIAMETER_SCALE)
+    sort = check_choice("sort", sort, ("block", "tile", "pixel"), none_ok=True)
+    tile_merge = check_choice("tile_merge", tile_merge, TILE_MERGES, none_ok=True)
+    specialize = check_bool("specialize", specialize)
+    dev = context.devices[0]
+    given = {k: v for k, v in (("sort", sort), ("tile", tile), ("tile_merge", tile_merge))
+             if v is not None}
+    plan = given.get("sort", "tile" if given else default_sort(context, scales, info.spp))
+    # a tile (group) the plan does not use is checked for its type only
+    if tile is not None and plan != "tile":
+        tile = check_int("tile", tile, 1, INT32_MAX, what=f"(unused by sort={plan!r})")
+    if group is not None and plan != "block":
+        group = check_int("group", group, 1, INT32_MAX, what=f"(unused by sort={plan!r})")
+    if tile is not None and plan == "tile":
+        side = math.isqrt(dev.max_work_group_size)  # a tile x tile work-group
+        hi = _largest(lambda t: tile_local_bytes(t, scales, info.spp) <= dev.local_mem_size,
+                      side)
+        why = (f"for sort='tile' with {scales} scales at {info.spp} spp on this device "
+               f"(local memory {dev.local_mem_size} bytes, max work-group size "
+               f"{dev.max_work_group_size})")
+        if hi == 0:
+            check_int("tile", tile, 1, INT32_MAX)
+            raise ValueError(f"tile: no tile fits {why}; use sort='pixel'")
+        tile = check_int("tile", tile, 1, hi, what=why)
+    if group is not None and plan == "block":
+        hi = _largest(lambda g: block_local_bytes(scales, info.spp, g) <= dev.local_mem_size,
+                      dev.max_work_group_size) if info.spp <= 255 else 0
+        why = (f"for sort='block' with {scales} scales at {info.spp} spp on this device "
+               f"(4x4 blocks per work-group; local memory {dev.local_mem_size} bytes, max "
+               f"work-group size {dev.max_work_group_size})")
+        if hi == 0:
+            check_int("group", group, 1, INT32_MAX)
+            raise ValueError(f"group: no group fits {why}" + (
+                "; the block sort takes at most 255 spp" if info.spp > 255 else "")
+                + ": use sort='tile' or 'pixel'")
+        group = check_int("group", group, 1, hi, what=why)
+    return (scales, dof_layers, exponent, smooth_motion, diameter_scale, sort, tile,
+            tile_merge, group, specialize)
 
 
 @register
@@ -56,10 +153,10 @@ class SweepPipeline(Pipeline):
                  tile_merge: str | None = None, group: int | None = None,
                  specialize: bool = True):
         super().__init__(context, info)
-        if not diameter_scale >= 0:
-            raise ValueError(f"diameter_scale: must be >= 0, got {diameter_scale}")
-        if scales not in (2, 4):
-            raise ValueError(f"scales: must be 2 or 4, got {scales!r}")
+        scales, dof_layers, exponent, smooth_motion, diameter_scale, sort, tile, tile_merge, \
+            group, specialize = check_knobs(context, info, scales, dof_layers, exponent,
+                                            smooth_motion, diameter_scale, sort, tile,
+                                            tile_merge, group, specialize)
         self.scales, self.dof_layers, self.exponent = int(scales), bool(dof_layers), exponent
         self.smooth_motion = info.has_motion if smooth_motion is None else bool(smooth_motion)
         self.diameter_scale = float(diameter_scale)
