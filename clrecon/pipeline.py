@@ -221,7 +221,12 @@ class Pipeline:
     def set_plan(self, plan: Plan) -> None:
         check_memory(self.context.devices[0], plan, self.info)
         self.plan = plan
-        self.fields = plan.fields
+        # what a caller uploads: what the passes read, and what checking the bounds on the
+        # device needs (the inspection pass always reads depth)
+        need = set(plan.fields) | set(plan.inspect_fields)
+        if plan.inspect_fields:
+            need.add("depth")
+        self.fields = tuple(f for f in FIELDS if f in need)
         self._own = {}
 
     @property

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from clrecon.bench.trade import TRADES, pareto_front, trade, trade_variants
@@ -56,3 +57,27 @@ def test_trade_end_to_end(device, tmp_path):
 def test_trade_cli_rejects_bad_input(tmp_path, capsys):
     assert main(["trade", "--scenes", "nope", "-o", str(tmp_path)]) == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_trade_on_the_users_own_frames(device, tmp_path):
+    """A user's sample file and reference image run like a scene named after the file."""
+    from clrecon.io import save_image, save_samples
+    from clrecon.scenes import get_scene, render_reference, render_samples
+
+    scene = get_scene("spheres")
+    save_samples(str(tmp_path / "shot_0042.bin"),
+                 render_samples(scene, 32, 24, 3, seed=5, device=device))
+    save_image(str(tmp_path / "shot_0042_ref.exr"),
+               render_reference(scene, 32, 24, 64, seed=1, device=device))
+    rep = trade(methods=["sweep"], repeats=1, oidn=False, device=device,
+                out_dir=tmp_path / "out",
+                inputs=[(tmp_path / "shot_0042.bin", tmp_path / "shot_0042_ref.exr")])
+    assert {r["scene"] for r in rep["rows"]} == {"shot_0042"}
+    assert {r["spp"] for r in rep["rows"]} == {3}
+    box = next(r for r in rep["rows"] if r["variant"] == "box")
+    assert 10 < box["psnr"] < 60
+    assert (tmp_path / "out" / "shot_0042_pareto.png").exists()
+    with pytest.raises(ValueError, match="image for a 32x24 frame"):
+        save_image(str(tmp_path / "small.exr"), np.zeros((4, 4, 3), np.float32))
+        trade(methods=["sweep"], repeats=1, oidn=False, device=device, out_dir=tmp_path,
+              inputs=[(tmp_path / "shot_0042.bin", tmp_path / "small.exr")])

@@ -34,7 +34,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..device import Device, DeviceSpec, get_device
-from ..io import load_image, save_image, tonemap_srgb
+from ..io import load_image, load_samples, save_image, tonemap_srgb
 from ..metrics import evaluate
 from ..pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline
 from ..scenes import SCENES, get_scene, render_reference, render_samples
@@ -179,7 +179,8 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
           spps: Sequence[int] = (4, 8, 16), size: tuple[int, int] = (512, 512),
           repeats: int = 5, oidn: bool = True, device: DeviceSpec | Device = None,
           out_dir: str | Path = "out/trade", ref_spp: int | None = None,
-          progress: Progress = None) -> dict:
+          progress: Progress = None,
+          inputs: Sequence[tuple[str, str]] | None = None) -> dict:
     """Measure the speed/accuracy trade; write ``trade.md``, ``trade.json`` and the pictures.
 
     Parameters
@@ -205,6 +206,10 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         Reference samples per pixel (default: each scene's).
     progress : callable, optional
         ``progress(done, total)`` after each reference, buffer and measured (scene, spp).
+    inputs : sequence of (samples path, reference path), optional
+        The user's own frames (any format of :func:`clrecon.io.load_samples`, references as
+        images), measured like a scene named after the file's stem at the file's spp. With
+        ``inputs`` and no ``scenes``, only the user's frames run.
 
     Returns
     -------
@@ -215,9 +220,14 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         scene and spp: the clrecon settings that beat each OIDN mode in both time and PSNR)
         and ``markdown``.
     """
-    scenes = list(SCENES if scenes is None else scenes)
-    if not scenes:
-        raise ValueError("scenes: need at least one")
+    inputs = [(str(a), str(b)) for a, b in (inputs or [])]
+    scenes = list((SCENES if not inputs else []) if scenes is None else scenes)
+    if not scenes and not inputs:
+        raise ValueError("scenes: need at least one (or an input frame)")
+    stems = [Path(a).stem for a, _ in inputs]
+    if len(set(stems) | set(scenes)) != len(stems) + len(scenes):
+        raise ValueError(f"inputs: frame names must be unique and differ from the scenes: "
+                         f"{stems}")
     scene_objs = {n: get_scene(n) for n in scenes}
     spps = [int(s) for s in spps]
     if not spps or min(spps) < 1:
@@ -231,7 +241,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     dev = get_device(device)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    total, done = len(scenes) * (1 + 2 * len(spps)), 0
+    total, done = len(scenes) * (1 + 2 * len(spps)) + 2 * len(inputs), 0
 
     def step():
         nonlocal done
@@ -240,32 +250,43 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
             progress(done, total)
 
     rows, crops = [], {}
+
+    def measure(name, spp, buf, ref):
+        got = _measure(dev, buf, variants, oidn, repeats)
+        group = []
+        for label, method, knobs, runner, ms, ratio in got:
+            image = runner.image()
+            row = {"scene": name, "spp": spp, "variant": label, "method": method,
+                   "knobs": knobs, "describe": runner.describe(), "ms": ms, "x_box": ratio,
+                   "pass_ms": {k: statistics.median(v) for k, v in runner.pass_ms.items()},
+                   **evaluate(image, ref)}
+            group.append((row, image))
+        for (row, _), front in zip(group, pareto_front([(r["ms"], r["psnr"])
+                                                        for r, _ in group])):
+            row["pareto"] = front
+        rows.extend(r for r, _ in group)
+        return group
+
     for name, scene in scene_objs.items():
         ref = _reference(scene, w, h, ref_spp or scene.reference_spp, dev, out / "references")
         step()
         for spp in spps:
             buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev).validate()
             step()
-            got = _measure(dev, buf, variants, oidn, repeats)
-            group = []
-            for label, method, knobs, runner, ms, ratio in got:
-                image = runner.image()
-                q = evaluate(image, ref)
-                row = {"scene": name, "spp": spp, "variant": label, "method": method,
-                       "knobs": knobs,
-                       "describe": runner.describe(),
-                       "ms": ms, "x_box": ratio,
-                       "pass_ms": {k: statistics.median(v) for k, v in runner.pass_ms.items()},
-                       **q}
-                group.append((row, image))
-            for (row, _), front in zip(group, pareto_front([(r["ms"], r["psnr"])
-                                                            for r, _ in group])):
-                row["pareto"] = front
-            rows += [r for r, _ in group]
+            group = measure(name, spp, buf, ref)
             if spp == spps[len(spps) // 2]:
                 crops[name] = (ref, group)
             step()
         _save_crops(out / f"{name}_crops.png", name, *crops[name])
+    for (path, ref_path), name in zip(inputs, stems):
+        buf, ref = load_samples(path), load_image(ref_path)
+        if ref.shape != (buf.height, buf.width, 3):
+            raise ValueError(f"--reference {ref_path}: {ref.shape[1]}x{ref.shape[0]} image for "
+                             f"a {buf.width}x{buf.height} frame ({path})")
+        step()
+        group = measure(name, buf.spp, buf, ref)
+        _save_crops(out / f"{name}_crops.png", name, ref, group)
+        step()
     report = {"device": dev.info.label, "size": [w, h], "spps": spps, "repeats": repeats,
               "rows": rows}
     report["verdicts"] = _verdicts(rows)
@@ -273,7 +294,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     (out / "trade.json").write_text(json.dumps(
         {k: v for k, v in report.items() if k != "markdown"}, indent=2, default=str))
     (out / "trade.md").write_text(report["markdown"])
-    for name in scene_objs:
+    for name in [*scene_objs, *stems]:
         _save_plot(out / f"{name}_pareto.png", name, [r for r in rows if r["scene"] == name])
     return report
 
