@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from . import cli_sequences
+
 log = logging.getLogger("clrecon")
 
 
@@ -190,6 +192,8 @@ def cmd_scene(args) -> int:
     from .io import SAMPLE_EXTENSIONS, save_samples
     from .scenes import get_scene, render_samples
 
+    if args.frames is not None:
+        return cli_sequences.scene_sequence(args, _Bar)
     _check_output("-o", args.output, SAMPLE_EXTENSIONS)
     _stage(args, f"rendering scene {args.name}")
     scene = get_scene(args.name)
@@ -217,6 +221,8 @@ def cmd_reference(args) -> int:
     from .io import IMAGE_EXTENSIONS, save_image
     from .scenes import get_scene, render_reference
 
+    if args.frames is not None:
+        return cli_sequences.reference_sequence(args, _Bar)
     _check_output("-o", args.output, IMAGE_EXTENSIONS)
     _stage(args, f"rendering the reference of scene {args.name}")
     scene = get_scene(args.name)
@@ -328,6 +334,8 @@ METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile", "group",
 def cmd_compare(args) -> int:
     from .io import load_image
 
+    if cli_sequences.is_sequence(args.a) or cli_sequences.is_sequence(args.b):
+        return cli_sequences.compare_sequences_cmd(args)
     _stage(args, "reading", args.a)
     image = load_image(args.a)
     _stage(args, "reading", args.b)
@@ -447,11 +455,31 @@ def cmd_table(args) -> int:
     try:
         rep = methods_table(args.scenes, variants=args.variant, size=args.size or (512, 512),
                             spp=args.spp, device=args.device, out_dir=args.output,
-                            repeats=args.repeats, progress=bar, ref_spp=args.ref_spp)
+                            repeats=args.repeats, progress=bar, ref_spp=args.ref_spp,
+                            inputs=_user_frames(args))
     finally:
         bar.close()
     print(rep["markdown"])
     return 0
+
+
+def _user_frames(args) -> list[tuple[str, str]]:
+    """``--input F --reference R`` pairs (repeatable, paired in order)."""
+    ins, refs = args.input or [], args.reference or []
+    if len(ins) != len(refs):
+        raise ValueError(f"--input/--reference: {len(ins)} inputs but {len(refs)} references "
+                         "(give one --reference per --input)")
+    for f in [*ins, *refs]:
+        if not os.path.isfile(f):
+            raise ValueError(f"--input/--reference: {f}: no such file")
+    return list(zip(ins, refs))
+
+
+def _user_frame_args(sp) -> None:
+    sp.add_argument("--input", action="append", default=None, metavar="F",
+                    help="a frame of your own (sample file; repeatable, with --reference)")
+    sp.add_argument("--reference", action="append", default=None, metavar="R",
+                    help="the converged reference image of the matching --input")
 
 
 def _device_list(text: str):
@@ -475,7 +503,8 @@ def cmd_trade(args) -> int:
     try:
         rep = trade(args.scenes, args.methods, spps=args.spp, size=args.size,
                     repeats=args.repeats, oidn=not args.no_oidn, device=args.device,
-                    out_dir=args.output, ref_spp=args.ref_spp, progress=bar)
+                    out_dir=args.output, ref_spp=args.ref_spp, progress=bar,
+                    inputs=_user_frames(args))
     finally:
         bar.close()
     print(rep["markdown"])
@@ -576,6 +605,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("-o", "--output", required=True, help=".bin/.txt (TLFR), .exr or .npz")
     sp.add_argument("--pinhole", action="store_true",
                     help="a pinhole frame (S = 1, lens 0, time 0.5): synthesis input of splat")
+    sp.add_argument("--frames", type=int, default=None, metavar="N",
+                    help="an animated sequence of N frames into the folder -o "
+                    "(<name>_0000.<format>, ...; objects and camera move continuously)")
+    sp.add_argument("--format", choices=cli_sequences.SAMPLE_FORMATS, default="npz",
+                    help="file format of --frames (default: %(default)s)")
     dev(sp)
     sp.set_defaults(fn=cmd_scene)
 
@@ -585,6 +619,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--spp", type=int, default=None, help="default: the scene's (1024; bokeh 4096)")
     sp.add_argument("--seed", type=int, default=1)
     sp.add_argument("-o", "--output", required=True, help=".exr (or .png)")
+    sp.add_argument("--frames", type=int, default=None, metavar="N",
+                    help="the references of `scene --frames N` into the folder -o")
     dev(sp)
     sp.set_defaults(fn=cmd_reference)
 
@@ -624,7 +660,12 @@ def build_parser() -> argparse.ArgumentParser:
     dev(sp)
     sp.set_defaults(fn=cmd_reconstruct)
 
-    sp = sub.add_parser("compare", help="quality of image A against reference B")
+    cli_sequences.add_batch_parser(sub, dev, _device_list)
+    sub.choices["batch"].set_defaults(fn=lambda a: cli_sequences.cmd_batch(
+        a, _Bar, _parse_knobs, _check_knob_names))
+
+    sp = sub.add_parser("compare", help="quality of image A against reference B; of two "
+                        "sequences (folders or globs, frames paired by name) with flicker")
     sp.add_argument("a")
     sp.add_argument("b")
     sp.add_argument("--json", action="store_true")
@@ -671,6 +712,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--spp", type=int, default=16)
     sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
     sp.add_argument("--repeats", type=int, default=5, help="timed runs after a warm-up")
+    _user_frame_args(sp)
     sp.add_argument("-o", "--output", default="out/methods")
     dev(sp)
     sp.set_defaults(fn=cmd_table)
@@ -686,6 +728,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--repeats", type=int, default=5, help="paired rounds after a warm-up")
     sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
     sp.add_argument("--no-oidn", action="store_true", help="leave out Open Image Denoise")
+    _user_frame_args(sp)
     sp.add_argument("-o", "--output", default="out/trade")
     dev(sp)
     sp.set_defaults(fn=cmd_trade)

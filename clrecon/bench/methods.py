@@ -25,7 +25,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..device import Device, DeviceSpec, get_device
-from ..io import save_image
+from ..io import load_image, load_samples, save_image
 from ..metrics import evaluate
 from ..pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline, run
 from ..scenes import SCENES, get_scene, render_reference, render_samples
@@ -235,7 +235,8 @@ def methods_table(scenes: Sequence[str] | None = None,
                   size: tuple[int, int] = (512, 512), spp: int = 16,
                   device: DeviceSpec | Device = None, out_dir: str | Path = "out/methods",
                   repeats: int = 5, progress: Progress = None,
-                  ref_spp: int | None = None) -> dict:
+                  ref_spp: int | None = None,
+                  inputs: Sequence[tuple[str, str]] | None = None) -> dict:
     """Time and score each variant on each scene; write the table, its JSON and crops.
 
     Parameters
@@ -259,6 +260,9 @@ def methods_table(scenes: Sequence[str] | None = None,
         ``progress(done, total)`` after the reference, the samples and each variant.
     ref_spp : int, optional
         Reference samples per pixel (default: each scene's converged default).
+    inputs : sequence of (samples path, reference path), optional
+        The user's own frames, each a row named after the file's stem at its own size and
+        spp. With ``inputs`` and no ``scenes``, only the user's frames run.
 
     Returns
     -------
@@ -275,9 +279,14 @@ def methods_table(scenes: Sequence[str] | None = None,
     TypeError
         A variant's knob that its method does not take.
     """
-    scenes = list(SCENES if scenes is None else scenes)
-    if not scenes:
-        raise ValueError("scenes: need at least one")
+    inputs = [(str(a), str(b)) for a, b in (inputs or [])]
+    scenes = list((SCENES if not inputs else []) if scenes is None else scenes)
+    if not scenes and not inputs:
+        raise ValueError("scenes: need at least one (or an input frame)")
+    stems = [Path(a).stem for a, _ in inputs]
+    if len(set(stems) | set(scenes)) != len(stems) + len(scenes):
+        raise ValueError(f"inputs: frame names must be unique and differ from the scenes: "
+                         f"{stems}")
     variants = _check_variants(DEFAULT_VARIANTS if variants is None else variants)
     w, h = (int(v) for v in size)
     for name, v in (("width", w), ("height", h), ("spp", spp), ("repeats", repeats)):
@@ -289,7 +298,7 @@ def methods_table(scenes: Sequence[str] | None = None,
     dev = get_device(device)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    steps, done = len(scenes) * (2 + len(variants)), 0
+    steps, done = (len(scenes) + len(inputs)) * (2 + len(variants)), 0
 
     def step():
         nonlocal done
@@ -297,14 +306,28 @@ def methods_table(scenes: Sequence[str] | None = None,
         if progress:
             progress(done, steps)
 
+    def frames():
+        """(name, samples, reference, reference spp) of every scene, then every input."""
+        for name, scene in scene_objs.items():
+            rspp = ref_spp or scene.reference_spp
+            ref = render_reference(scene, w, h, rspp, seed=1, device=dev)
+            step()
+            buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev)
+            buf.validate()
+            step()
+            yield name, buf, ref, rspp
+        for (path, ref_path), name in zip(inputs, stems):
+            ref = load_image(ref_path)
+            step()
+            buf = load_samples(path)
+            if ref.shape != (buf.height, buf.width, 3):
+                raise ValueError(f"--reference {ref_path}: {ref.shape[1]}x{ref.shape[0]} image "
+                                 f"for a {buf.width}x{buf.height} frame ({path})")
+            step()
+            yield name, buf, ref, None
+
     rows = []
-    for name, scene in scene_objs.items():
-        rspp = ref_spp or scene.reference_spp
-        ref = render_reference(scene, w, h, rspp, seed=1, device=dev)
-        step()
-        buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev)
-        buf.validate()
-        step()
+    for name, buf, ref, rspp in frames():
         images = []
         for label, method, knobs in variants:
             image, ms, pass_ms, desc = _time_variant(dev, buf, method, knobs, repeats)
@@ -315,8 +338,8 @@ def methods_table(scenes: Sequence[str] | None = None,
             images.append(image)
             rows.append({"scene": name, "variant": label, "method": method, "knobs": knobs,
                          "describe": desc, "ms": ms, "pass_ms": pass_ms, **q,
-                         "device": dev.info.label, "size": [w, h], "spp": spp,
-                         "reference_spp": rspp})
+                         "device": dev.info.label, "size": [buf.width, buf.height],
+                         "spp": buf.spp, "reference_spp": rspp})
             step()
         box = next((img for img, v in zip(images, variants) if v[1] == "box"), None)
         if box is None:
