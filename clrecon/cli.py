@@ -143,6 +143,92 @@ def _check_knob_names(method: str, knobs: dict, what: str = "") -> None:
                          f"{sorted(accepted)}")
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Every option's help ends with its default, unless it already names one or there is
+    none to show (``None``, a flag's ``False``); sizes as WxH, lists comma-separated."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (not action.option_strings or action.nargs == 0 or default is None
+                or default is argparse.SUPPRESS or default is False
+                or "default" in text.lower()):
+            return text
+        if isinstance(default, tuple) and len(default) == 2 and action.type is _size:
+            shown = f"{default[0]}x{default[1]}"
+        elif isinstance(default, (list, tuple)):
+            shown = ",".join(map(str, default))
+        else:
+            shown = str(default)
+        shown = shown.replace("%", "%%")
+        return f"{text} (default: {shown})" if text else f"default: {shown}"
+
+
+def _stderr_is_terminal() -> bool:
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+def _stage_logger(command: str):
+    """``log(line)`` for a command's long stages: a line on stderr where there is no terminal
+    for a progress bar to show on (a log, a pipe, CI); nothing on a terminal."""
+    quiet = _stderr_is_terminal()
+
+    def log(line: str) -> None:
+        if not quiet:
+            print(f"clrecon {command}: {line}", file=sys.stderr, flush=True)
+
+    return log
+
+
+def _sample_file_spp(path) -> int | None:
+    """The spp of a clrecon sample EXR (OpenImageIO header: ``clrecon:format`` is
+    ``samples``, or channels ``s0.R``...), ``0`` when it is one without a readable spp,
+    ``None`` when it is not a sample EXR (or cannot be read: the image reader says why)."""
+    path = str(path)
+    if os.path.splitext(path)[1].lower() != ".exr" or not os.path.isfile(path):
+        return None
+    try:
+        import OpenImageIO as oiio
+
+        inp = oiio.ImageInput.open(path)
+        if inp is None:
+            return None
+        try:
+            spec = inp.spec()
+        finally:
+            inp.close()
+        names = list(spec.channelnames)
+        fmt = spec.getattribute("clrecon:format")
+        if fmt != "samples" and not (names and names[0].startswith("s0.")):
+            return None
+        spp = spec.getattribute("clrecon:spp")
+        try:
+            return max(int(spp), 0)
+        except (TypeError, ValueError):
+            return len({n.split(".", 1)[0] for n in names if n[:1] == "s" and "." in n})
+    except Exception:  # an unreadable header: the image reader reports it
+        return None
+
+
+def _refuse_sample_file(what: str, path) -> None:
+    """An image argument (``what``: its option, or empty) that is a sample buffer: say so
+    in one line, before reading it."""
+    ext = os.path.splitext(str(path))[1].lower()
+    kind = None
+    if ext in (".npz", ".bin", ".txt"):
+        kind = f"a {ext} sample buffer"
+    else:
+        spp = _sample_file_spp(path)
+        if spp is not None:
+            kind = f"a sample buffer ({spp} spp)" if spp else "a sample buffer"
+    if kind is not None:
+        raise ValueError(f"{what + ' ' if what else ''}{path}: is {kind}, not an image; "
+                         f"reconstruct it first: clrecon reconstruct {path} -o image.exr")
+
+
 class _Bar:
     """A tqdm progress bar usable as a ``progress(done, total)`` callback."""
 
@@ -266,6 +352,7 @@ def cmd_reconstruct(args) -> int:
     reads = {"input": _sample_files(args.input)}
     if args.reference:
         reads["--reference"] = [str(args.reference)]
+        _refuse_sample_file("--reference", args.reference)
     _check_files(reads, {"-o": [str(args.output)]})
     _check_output("-o", args.output, IMAGE_EXTENSIONS)
     _stage(args, "reading samples", args.input)
@@ -336,6 +423,8 @@ def cmd_compare(args) -> int:
 
     if cli_sequences.is_sequence(args.a) or cli_sequences.is_sequence(args.b):
         return cli_sequences.compare_sequences_cmd(args)
+    _refuse_sample_file("", args.a)
+    _refuse_sample_file("", args.b)
     _stage(args, "reading", args.a)
     image = load_image(args.a)
     _stage(args, "reading", args.b)
@@ -346,6 +435,88 @@ def cmd_compare(args) -> int:
         print(f"{args.a} vs {args.b}: PSNR {q['psnr']:.2f} dB, SSIM {q['ssim']:.4f}, "
               f"FLIP {q['flip']:.4f}")
     return 0
+
+
+def reference_cache_dir() -> Path | None:
+    """Folder of the demo's cached references, or ``None`` when caching is off:
+    ``$CLRECON_CACHE_DIR/references`` (``off`` or empty: no cache), else
+    ``$XDG_CACHE_HOME/clrecon/references``, else ``~/.cache/clrecon/references``."""
+    from .device import ENV_CACHE_DIR
+
+    env = os.environ.get(ENV_CACHE_DIR)
+    if env is not None:
+        env = env.strip()
+        if not env or env.lower() == "off":
+            return None
+        return Path(env).expanduser() / "references"
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    if xdg and os.path.isabs(xdg):
+        return Path(xdg) / "clrecon" / "references"
+    try:
+        return Path.home() / ".cache" / "clrecon" / "references"
+    except (RuntimeError, KeyError):  # no home directory to be found
+        return None
+
+
+def _reference_cache_name(scene, w: int, h: int, spp: int, seed: int) -> str:
+    """File name of a cached reference: what it is, and a digest of everything it depends
+    on (the renderer's kernel source with its headers, the host renderer, the scene's
+    definition)."""
+    import hashlib
+
+    from .device import source_hash
+    from .scenes import render as render_module
+
+    digest = hashlib.sha256()
+    for part in ("clrecon-reference/1", scene.name, f"{w}x{h}", str(spp), str(seed),
+                 source_hash("raytrace"), Path(render_module.__file__).read_text(),
+                 repr(scene)):
+        data = part.encode()
+        digest.update(len(data).to_bytes(8, "little"))
+        digest.update(data)
+    return f"{scene.name}_{w}x{h}_{spp}spp_seed{seed}_{digest.hexdigest()[:20]}.npy"
+
+
+def _load_cached_reference(path: Path | None, w: int, h: int) -> np.ndarray | None:
+    if path is None:
+        return None
+    try:
+        img = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        return None
+    except Exception as exc:  # truncated or corrupt: render again (and replace it)
+        log.debug("reference cache: %s unreadable (%s)", path, exc)
+        return None
+    if img.shape != (h, w, 3) or img.dtype != np.float32 or not np.isfinite(img).all():
+        log.debug("reference cache: %s holds a %s %s array", path, img.shape, img.dtype)
+        return None
+    return img
+
+
+def _store_cached_reference(path: Path | None, img: np.ndarray) -> bool:
+    """Write ``img`` to ``path`` atomically; ``False`` (logged) where it cannot be written."""
+    import tempfile
+
+    if path is None:
+        return False
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:24]}.", suffix=".tmp",
+                                   dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.save(f, np.ascontiguousarray(img, np.float32), allow_pickle=False)
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+        return True
+    except OSError as exc:  # read-only or full disk: the demo goes on without it
+        log.info("reference cache: could not write %s (%s)", path, exc)
+        return False
 
 
 def cmd_demo(args) -> int:
@@ -366,25 +537,47 @@ def cmd_demo(args) -> int:
     _stage(args, "creating", out)
     out.mkdir(parents=True, exist_ok=True)
     _stage(args, f"rendering scene {args.scene}")
+    stage_log = _stage_logger("demo")
     w, h = args.size or scene.default_size
+    ref_spp = args.ref_spp or scene.reference_spp
     # the first frame of a shape pays for program build and PoCL's per-shape specialisation
+    t0 = time.perf_counter()
     render_samples(scene, w, h, args.spp, seed=args.seed, device=args.device)
+    stage_log(f"first render (program build): {time.perf_counter() - t0:.1f} s")
     t0 = time.perf_counter()
     buf = _with_bar("samples", render_samples, scene, w, h, args.spp, seed=args.seed,
                     device=args.device)
     t_render = time.perf_counter() - t0
-    ref = _with_bar("reference", render_reference, scene, w, h, args.ref_spp, seed=args.seed + 1,
-                    device=args.device)
-    t_ref = time.perf_counter() - t0 - t_render
+    stage_log(f"samples {w}x{h} at {args.spp} spp: {t_render:.2f} s")
+    folder = reference_cache_dir()
+    cache = None if folder is None else \
+        folder / _reference_cache_name(scene, w, h, ref_spp, args.seed + 1)
+    t0 = time.perf_counter()
+    ref = _load_cached_reference(cache, w, h)
+    if ref is not None:
+        t_ref = time.perf_counter() - t0
+        ref_note = f"reference {ref_spp} spp from the cache ({cache})"
+        stage_log(f"reference {w}x{h} at {ref_spp} spp: read from the cache {cache}")
+    else:
+        _stage(args, f"rendering the reference of scene {args.scene}")
+        stage_log(f"reference {w}x{h} at {ref_spp} spp: rendering"
+                  + ("" if cache is None else " (cached for the next run)"))
+        ref = _with_bar("reference", render_reference, scene, w, h, ref_spp,
+                        seed=args.seed + 1, device=args.device)
+        t_ref = time.perf_counter() - t0
+        stored = _store_cached_reference(cache, ref)
+        ref_note = f"reference {ref_spp} spp in {t_ref:.1f} s" + (
+            " (cached for the next run)" if stored else "")
+        stage_log(f"reference {w}x{h} at {ref_spp} spp: {t_ref:.1f} s")
+    _stage(args, "writing the reference into", out)
     save_image(out / f"{args.scene}_reference.exr", ref)
     save_image(out / f"{args.scene}_reference.png", ref)
-    ref_spp = args.ref_spp or scene.reference_spp
     print(f"scene {args.scene} {w}x{h}: {args.spp} spp rendered in {t_render * 1e3:.0f} ms "
-          f"({w * h * args.spp / t_render / 1e6:.1f} M samples/s); reference {ref_spp} spp "
-          f"in {t_ref:.1f} s")
+          f"({w * h * args.spp / t_render / 1e6:.1f} M samples/s); {ref_note}")
     device = None
     for method in methods:
         _stage(args, f"running {method} on scene {args.scene}")
+        t0 = time.perf_counter()
         if method == "oidn":
             image, device_ms, total_ms = _demo_oidn(buf, args.device)
         else:
@@ -394,11 +587,21 @@ def cmd_demo(args) -> int:
         q = evaluate(image, ref)
         save_image(out / f"{args.scene}_{method}.exr", image)
         save_image(out / f"{args.scene}_{method}.png", image)
+        stage_log(f"{method}: {time.perf_counter() - t0:.1f} s (program build, warm-up, timed "
+                  f"run, quality, images)")
         print(f"{method:8s} device {device_ms:8.2f} ms (total {total_ms:7.1f} ms)  "
               f"PSNR {q['psnr']:.2f} dB  SSIM {q['ssim']:.4f}  FLIP {q['flip']:.4f}")
+    print("device ms: the passes' time on the device (profiling events; on a CPU device the "
+          "kernels' wall time). total ms: the wall time of a call after a warm-up call, i.e. "
+          "sample upload, sample inspection, planning (0 once cached), every pass and the "
+          "image's readback; program builds are in the warm-up, not in it.")
+    print(f"quality against the {ref_spp}-spp reference: PSNR (dB) and SSIM, higher is "
+          "better; FLIP, lower is better. FLIP models what a viewer notices (edges, colour "
+          "and contrast differences) while PSNR averages squared error, so the two can rank "
+          "methods differently.")
     if "oidn" in methods:
         print("oidn: the box image denoised by Intel Open Image Denoise (pyoidn, CPU, quality "
-              "high); its device ms is box + denoiser wall time")
+              "high); its device and total ms are box's plus the denoiser's wall time")
     print(f"device: {device}")
     print(f"images in {out}/")
     return 0
@@ -500,11 +703,15 @@ def cmd_trade(args) -> int:
     _check_output_dir("-o", args.output)
     _stage(args, "measuring the trade into", args.output)
     bar = _Bar("trade", unit="step")
+
+    def status(line: str) -> None:
+        bar.bar.write(f"clrecon trade: {line}", file=sys.stderr)
+
     try:
         rep = trade(args.scenes, args.methods, spps=args.spp, size=args.size,
                     repeats=args.repeats, oidn=not args.no_oidn, device=args.device,
                     out_dir=args.output, ref_spp=args.ref_spp, progress=bar,
-                    inputs=_user_frames(args))
+                    inputs=_user_frames(args), status=status)
     finally:
         bar.close()
     print(rep["markdown"])
@@ -591,7 +798,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def dev(sp):
         sp.add_argument("--device", default=None,
-                        help="OpenCL device index or name substring (env CLRECON_DEVICE)")
+                        help="OpenCL device index or name substring (default: "
+                        "$CLRECON_DEVICE, else the first GPU, else the first device)")
 
     sp = sub.add_parser("devices", help="list OpenCL devices")
     sp.add_argument("--json", action="store_true")
@@ -671,15 +879,19 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(fn=cmd_compare)
 
-    sp = sub.add_parser("demo", help="render a scene, reconstruct it, print time and quality")
-    sp.add_argument("--scene", default="fence")
-    sp.add_argument("--size", type=_size, default=None)
-    sp.add_argument("--spp", type=int, default=8)
+    sp = sub.add_parser("demo", help="render a scene, reconstruct it, print time and quality",
+                        description="Render a built-in scene, reconstruct it with each method "
+                        "and print time and quality against a converged reference (cached "
+                        "in $CLRECON_CACHE_DIR/references or ~/.cache/clrecon/references: "
+                        "a second run skips its render).")
+    sp.add_argument("--scene", default="fence", help="built-in scene")
+    sp.add_argument("--size", type=_size, default=None, help="WxH (default: the scene's)")
+    sp.add_argument("--spp", type=int, default=8, help="samples per pixel of the input")
     sp.add_argument("--ref-spp", type=int, default=None, help="default: the scene's")
-    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--seed", type=int, default=0, help="of the input (reference: seed + 1)")
     sp.add_argument("--methods", default="box,oidn,sweep,layered,splat",
                     help="comma-separated methods to run (oidn: box + Open Image Denoise)")
-    sp.add_argument("-o", "--output", default="out")
+    sp.add_argument("-o", "--output", default="out", help="folder of the images")
     dev(sp)
     sp.set_defaults(fn=cmd_demo)
 
@@ -687,33 +899,34 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--passes", nargs="*", default=None, help="default: every tunable pass")
     sp.add_argument("--budget", type=float, default=600.0, help="seconds for all passes")
     sp.add_argument("--size", type=_size, default=(640, 360), help="tuned frame size WxH")
-    sp.add_argument("--spp", type=int, default=16)
-    sp.add_argument("--runs", type=int, default=7, help="timed runs per configuration (>= 7)")
+    sp.add_argument("--spp", type=int, default=16, help="samples per pixel of the tuned frame")
+    sp.add_argument("--runs", type=int, default=7, help="timed runs per configuration, at least 7")
     sp.add_argument("--root", default=None, help="database folder (default: the package's)")
     dev(sp)
     sp.set_defaults(fn=cmd_tune)
 
     sp = sub.add_parser("report", help="generator throughput, reference convergence, box quality")
-    sp.add_argument("--scenes", nargs="*", default=None)
-    sp.add_argument("--size", type=_size, default=None)
-    sp.add_argument("--spp", type=_int_list, default=[4, 8, 16])
+    sp.add_argument("--scenes", nargs="*", default=None, help="default: every built-in scene")
+    sp.add_argument("--size", type=_size, default=None, help="WxH (default 512x512)")
+    sp.add_argument("--spp", type=_int_list, default=[4, 8, 16], metavar="N,...",
+                    help="samples per pixel of the box-quality rows")
     sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
-    sp.add_argument("-o", "--output", default="out/report")
+    sp.add_argument("-o", "--output", default="out/report", help="output folder")
     dev(sp)
     sp.set_defaults(fn=cmd_report)
 
     sp = sub.add_parser("table", help="device time and quality of reconstruction variants")
-    sp.add_argument("--scenes", nargs="*", default=None)
+    sp.add_argument("--scenes", nargs="*", default=None, help="default: every built-in scene")
     sp.add_argument("--variant", action="append", type=_variant, default=None,
                     metavar="SPEC",
                     help="a column, [LABEL=]METHOD[:K=V,...], e.g. sweep4=sweep:scales=4 "
                          "(repeatable; default: box and four sweep variants)")
     sp.add_argument("--size", type=_size, default=None, help="WxH (default 512x512)")
-    sp.add_argument("--spp", type=int, default=16)
+    sp.add_argument("--spp", type=int, default=16, help="samples per pixel")
     sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
     sp.add_argument("--repeats", type=int, default=5, help="timed runs after a warm-up")
     _user_frame_args(sp)
-    sp.add_argument("-o", "--output", default="out/methods")
+    sp.add_argument("-o", "--output", default="out/methods", help="output folder")
     dev(sp)
     sp.set_defaults(fn=cmd_table)
 
@@ -723,34 +936,43 @@ def build_parser() -> argparse.ArgumentParser:
                     metavar="S,...", help="built-in scenes (default: all)")
     sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
                     metavar="M,...", help="methods (default: all registered; box always runs)")
-    sp.add_argument("--spp", type=_int_list, default=[4, 8, 16], metavar="N,...")
-    sp.add_argument("--size", type=_size, default=(512, 512), help="WxH (default 512x512)")
+    sp.add_argument("--spp", type=_int_list, default=[4, 8, 16], metavar="N,...",
+                    help="samples per pixel of the measured buffers")
+    sp.add_argument("--size", type=_size, default=(512, 512), help="WxH")
     sp.add_argument("--repeats", type=int, default=5, help="paired rounds after a warm-up")
     sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
-    sp.add_argument("--no-oidn", action="store_true", help="leave out Open Image Denoise")
+    sp.add_argument("--no-oidn", action="store_true",
+                    help="leave out Open Image Denoise (default: included)")
     _user_frame_args(sp)
-    sp.add_argument("-o", "--output", default="out/trade")
+    sp.add_argument("-o", "--output", default="out/trade",
+                    help="output folder (references cached in its references/)")
     dev(sp)
     sp.set_defaults(fn=cmd_trade)
 
     sp = sub.add_parser("bench", help="per-pass device times on every device, tuned vs default")
     sp.add_argument("--devices", type=_device_list, default="all", metavar="all|D,...",
-                    help="comma-separated device indices or name substrings (default: all)")
+                    help="comma-separated device indices or name substrings, as --device "
+                    "of the other commands, which bench takes too (default: all)")
+    sp.add_argument("--device", dest="devices", type=_device_list,
+                    default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     sp.add_argument("--variant", action="append", type=_variant, default=None,
                     metavar="SPEC",
                     help="[LABEL=]METHOD[:K=V,...] (repeatable; default: box, sweep 2-scale, "
                          "sweep dof-layers)")
     sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
-                    metavar="M,...", help="methods with their default knobs (adds to --variant)")
+                    metavar="M,...", help="methods with their default knobs (adds to "
+                    "--variant; default: none)")
     sp.add_argument("--scene", default=None,
                     help="built-in scene to render as input (default: a synthetic frame)")
-    sp.add_argument("--size", type=_size, default=(1280, 720), help="WxH (default 1280x720)")
-    sp.add_argument("--spp", type=int, default=16)
+    sp.add_argument("--size", type=_size, default=(1280, 720), help="WxH")
+    sp.add_argument("--spp", type=int, default=16, help="samples per pixel")
     sp.add_argument("--repeats", type=int, default=7, help="paired timed runs after a warm-up")
-    sp.add_argument("--json", default=None, metavar="F", help="write the result as JSON")
-    sp.add_argument("--csv", default=None, metavar="F", help="write the long rows as CSV")
+    sp.add_argument("--json", default=None, metavar="F",
+                    help="write the result as JSON (default: not written)")
+    sp.add_argument("--csv", default=None, metavar="F",
+                    help="write the long rows as CSV (default: not written)")
     sp.add_argument("--compare", default=None, metavar="OLD.json",
-                    help="print the change against an earlier --json result")
+                    help="print the change against an earlier --json result (default: none)")
     sp.set_defaults(fn=cmd_bench)
 
     sp = sub.add_parser("psf", help="splat: pre-compute a PSF model's spreadlet table")
@@ -758,11 +980,15 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("model", choices=("simplelens", "combined", "stylized"))
     sp.add_argument("-o", "--output", default=None,
                     help="default: the package's table (clrecon/splat/data/MODEL.npz)")
-    sp.add_argument("--failures", type=int, default=10_000, help="dart-throwing stop")
+    sp.add_argument("--failures", type=int, default=10_000,
+                    help="dart-throwing stop (consecutive failures)")
     sp.add_argument("--lloyd", type=int, default=50, help="weighted Lloyd steps")
     sp.add_argument("--anneal", type=int, default=400, help="simulated-annealing steps")
     sp.add_argument("--spacing", type=float, default=0.5, help="dart radius scale")
     sp.set_defaults(fn=cmd_psf)
+    p.formatter_class = _HelpFormatter
+    for sp in sub.choices.values():
+        sp.formatter_class = _HelpFormatter
     return p
 
 
@@ -824,6 +1050,11 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="clrecon: %(message)s")
     args.stage = None
+    from . import device as cldev
+
+    echo = cldev.ECHO_BUILD_OUTPUT
+    # what compilers write to fd 2 (PoCL's "N warnings generated.") only with -v/--debug
+    cldev.ECHO_BUILD_OUTPUT = bool(args.verbose or args.debug)
     try:
         with warnings.catch_warnings():
             if not (args.verbose or args.debug):  # "Non-empty compiler output": noise
@@ -836,6 +1067,8 @@ def main(argv=None) -> int:
             raise
         print(f"clrecon {args.command}: error: {_message(exc, args.stage)}", file=sys.stderr)
         return 2
+    finally:
+        cldev.ECHO_BUILD_OUTPUT = echo
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 --frames``), ``batch``, and ``compare`` of two sequences. Thin: parse, call, print."""
 from __future__ import annotations
 
+import argparse
 import glob
 import json
 import os
@@ -178,7 +179,10 @@ def add_batch_parser(sub, dev, device_list) -> None:
     sp.add_argument("--method", default="box", help="default: %(default)s")
     sp.add_argument("--knob", action="append", default=[], metavar="K=V")
     sp.add_argument("--devices", type=device_list, default=None, metavar="all|D,...",
-                    help="devices working in parallel (default: the default device)")
+                    help="devices working in parallel; --device D,... is the same option "
+                    "(default: the default device)")
+    sp.add_argument("--device", dest="devices", type=device_list, default=argparse.SUPPRESS,
+                    help=argparse.SUPPRESS)
     sp.add_argument("--workers", type=int, default=None,
                     help="run on a local Dask cluster of N worker processes")
     sp.add_argument("--scheduler", default=None, metavar="ADDRESS",

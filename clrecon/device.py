@@ -27,7 +27,9 @@ import hashlib
 import logging
 import os
 import re
+import sys
 import tempfile
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -303,11 +305,86 @@ _programs: dict[tuple, tuple[cl.Context, cl.Program]] = {}
 _kernels: dict[tuple, cl.Kernel] = {}
 
 
+#: re-emit what a build writes to file descriptor 2 (compiler chatter) to stderr; the CLI
+#: sets it with ``--verbose``. Off, that text goes only to the ``clrecon.device`` debug log
+#: (and into :class:`~clrecon.errors.KernelBuildError` when the build fails).
+ECHO_BUILD_OUTPUT = False
+
+_fd2_lock = threading.Lock()
+
+
+class _CaptureFd2:
+    """Redirect file descriptor 2 into a temporary file for the duration of a build: PoCL's
+    compiler writes its diagnostics summary ("30 warnings generated.") there itself, past
+    Python's ``sys.stderr``. Builds take a lock (fd 2 is the process's, not a thread's);
+    fd 2 is restored in any case, and ``text`` holds what was written. A host where fd 2
+    cannot be duplicated builds uncaptured."""
+
+    def __init__(self):
+        self.text = ""
+        self._saved = self._tmp = None
+
+    def __enter__(self):
+        _fd2_lock.acquire()
+        try:
+            _flush_stderr()
+            self._tmp = tempfile.TemporaryFile()
+            self._saved = os.dup(2)
+            os.dup2(self._tmp.fileno(), 2)
+        except OSError as exc:
+            logger.debug("build output: not captured (%s)", exc)
+            if self._saved is not None:
+                os.close(self._saved)
+                self._saved = None
+        except BaseException:
+            _fd2_lock.release()
+            raise
+        return self
+
+    def __exit__(self, *exc_info):
+        try:
+            if self._saved is not None:
+                _flush_stderr()
+                try:
+                    os.dup2(self._saved, 2)
+                finally:
+                    os.close(self._saved)
+            if self._tmp is not None:
+                self._tmp.seek(0)
+                self.text = self._tmp.read().decode(errors="replace")
+                self._tmp.close()
+        finally:
+            _fd2_lock.release()
+        return False
+
+
+def _flush_stderr() -> None:
+    try:
+        sys.stderr.flush()
+    except Exception:  # a closed or odd stderr: nothing to flush
+        pass
+
+
+def _report_build_output(label: str, text: str) -> None:
+    if not text.strip():
+        return
+    logger.debug("build output of %s:\n%s", label, text.rstrip())
+    if ECHO_BUILD_OUTPUT:
+        try:
+            sys.stderr.write(text)
+            sys.stderr.flush()
+        except Exception:
+            pass
+
+
 def build_source(
     context: cl.Context, source: str, defines: Defines | None = None, label: str = "<source>"
 ) -> cl.Program:
     """Build OpenCL C ``source`` for ``context`` (cached in the process and on disk; includes
-    resolve in ``kernels/``)."""
+    resolve in ``kernels/``). What the compiler writes to file descriptor 2 is captured: it
+    is logged at debug level on ``clrecon.device``, part of the
+    :class:`~clrecon.errors.KernelBuildError` of a failed build, and echoed to stderr only
+    with :data:`ECHO_BUILD_OUTPUT`."""
     options = build_options(defines)
     source_digest = hashlib.sha256(source.encode()).hexdigest()
     headers = _headers_digest()
@@ -316,17 +393,30 @@ def build_source(
     if hit is not None:
         return hit[1]
     entries = _cache_entries(context, source_digest, headers, options)
-    prg = _load_cached(context, entries, options, label) if entries else None
+    prg = None
+    if entries:
+        with _CaptureFd2() as capture:
+            prg = _load_cached(context, entries, options, label)
+        _report_build_output(label, capture.text)
     if prg is None:
         prg = cl.Program(context, source)
+        capture = _CaptureFd2()
         try:
-            # pyopencl's own binary cache would not see edits of included headers reliably
-            prg.build(options=options, cache_dir=False)
+            with capture:
+                # pyopencl's own binary cache would not see edits of included headers reliably
+                prg.build(options=options, cache_dir=False)
         except cl.Error as exc:
             log = _build_log(prg, context) or str(exc)
+            extra = capture.text.strip()
+            if extra and extra not in log:
+                log = f"{log.rstrip()}\n{extra}"
+            logger.debug("build output of %s:\n%s", label, capture.text.rstrip())
             raise KernelBuildError(label, options, log) from exc
-        if entries:
-            _store_cached(prg, entries, label)
+        _report_build_output(label, capture.text)
+        if entries:  # asking for the binaries may compile again (PoCL)
+            with _CaptureFd2() as capture:
+                _store_cached(prg, entries, label)
+            _report_build_output(label, capture.text)
     _programs[key] = (context, prg)
     return prg
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import statistics
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -100,8 +100,12 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[bool]:
     return flags
 
 
+def _reference_path(scene, w, h, spp, cache: Path) -> Path:
+    return cache / f"{scene.name}_{w}x{h}_{spp}spp_seed1.exr"
+
+
 def _reference(scene, w, h, spp, dev, cache: Path) -> np.ndarray:
-    path = cache / f"{scene.name}_{w}x{h}_{spp}spp_seed1.exr"
+    path = _reference_path(scene, w, h, spp, cache)
     if path.exists():
         return load_image(path)
     ref = render_reference(scene, w, h, spp, seed=1, device=dev)
@@ -180,7 +184,8 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
           repeats: int = 5, oidn: bool = True, device: DeviceSpec | Device = None,
           out_dir: str | Path = "out/trade", ref_spp: int | None = None,
           progress: Progress = None,
-          inputs: Sequence[tuple[str, str]] | None = None) -> dict:
+          inputs: Sequence[tuple[str, str]] | None = None,
+          status: Callable[[str], None] | None = None) -> dict:
     """Measure the speed/accuracy trade; write ``trade.md``, ``trade.json`` and the pictures.
 
     Parameters
@@ -210,6 +215,11 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         The user's own frames (any format of :func:`clrecon.io.load_samples`, references as
         images), measured like a scene named after the file's stem at the file's spp. With
         ``inputs`` and no ``scenes``, only the user's frames run.
+    status : callable, optional
+        ``status(line)``: before measuring, one line saying what will run (scenes x spp x
+        settings = measurements, the rounds, the references to render); then one after
+        each reference rendered and each frame measured, with the time so far and an
+        estimate of the time left.
 
     Returns
     -------
@@ -242,6 +252,18 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     total, done = len(scenes) * (1 + 2 * len(spps)) + 2 * len(inputs), 0
+    if progress:
+        progress(0, total)  # the total from the start: a bar shows its ETA
+    ref_spps = {n: ref_spp or s.reference_spp for n, s in scene_objs.items()}
+    cached = {n for n, s in scene_objs.items()
+              if _reference_path(s, w, h, ref_spps[n], out / "references").exists()}
+    eta = _Eta([w * h * ref_spps[n] for n in scene_objs],
+               [w * h * spp for _ in scenes for spp in spps] + [None] * len(inputs))
+    if status:
+        status(_plan_line(scenes, spps, inputs, len(variants) +
+                          (len(OIDN_QUALITIES) if oidn else 0), (w, h), repeats,
+                          {n: ref_spps[n] for n in scene_objs if n not in cached},
+                          len(cached), out / "references"))
 
     def step():
         nonlocal done
@@ -268,17 +290,28 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         return group
 
     for name, scene in scene_objs.items():
-        ref = _reference(scene, w, h, ref_spp or scene.reference_spp, dev, out / "references")
+        t = time.perf_counter()
+        ref = _reference(scene, w, h, ref_spps[name], dev, out / "references")
+        dt = time.perf_counter() - t
+        eta.reference(w * h * ref_spps[name], None if name in cached else dt)
+        if status and name not in cached:
+            status(eta.line(f"reference of {name} ({ref_spps[name]} spp) rendered", dt))
         step()
         for spp in spps:
+            t = time.perf_counter()
             buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev).validate()
             step()
             group = measure(name, spp, buf, ref)
             if spp == spps[len(spps) // 2]:
                 crops[name] = (ref, group)
+            dt = time.perf_counter() - t
+            eta.frame(w * h * spp, w * h * spp, dt)
+            if status:
+                status(eta.line(f"{name} at {spp} spp measured", dt))
             step()
         _save_crops(out / f"{name}_crops.png", name, *crops[name])
     for (path, ref_path), name in zip(inputs, stems):
+        t = time.perf_counter()
         buf, ref = load_samples(path), load_image(ref_path)
         if ref.shape != (buf.height, buf.width, 3):
             raise ValueError(f"--reference {ref_path}: {ref.shape[1]}x{ref.shape[0]} image for "
@@ -286,6 +319,10 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         step()
         group = measure(name, buf.spp, buf, ref)
         _save_crops(out / f"{name}_crops.png", name, ref, group)
+        dt = time.perf_counter() - t
+        eta.frame(None, buf.width * buf.height * buf.spp, dt)
+        if status:
+            status(eta.line(f"{name} ({buf.spp} spp) measured", dt))
         step()
     report = {"device": dev.info.label, "size": [w, h], "spps": spps, "repeats": repeats,
               "rows": rows}
@@ -297,6 +334,69 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     for name in [*scene_objs, *stems]:
         _save_plot(out / f"{name}_pareto.png", name, [r for r in rows if r["scene"] == name])
     return report
+
+
+def _duration(seconds: float) -> str:
+    seconds = max(0.0, float(seconds))
+    if seconds < 10:
+        return f"{seconds:.1f} s"
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+class _Eta:
+    """The time a trade has left, from what it measured so far. A reference costs its
+    pixels x spp at the rate of those rendered; a measured frame (its buffer, every
+    setting's build, warm-up and rounds) ``a + b * pixels * spp``, fitted to the frames
+    done (proportional until two sizes are known); a frame of the user's, whose size is
+    known only once it is read, the mean of the frames done."""
+
+    def __init__(self, refs: list[int], frames: list[int | None]):
+        self.refs, self.frames = list(refs), list(frames)  # work left: pixels x spp
+        self.ref_done: list[tuple[int, float]] = []
+        self.frame_done: list[tuple[int, float]] = []
+        self.t0 = time.perf_counter()
+
+    def reference(self, units: int, seconds: float | None) -> None:
+        """A reference done (``seconds`` ``None``: it was cached)."""
+        self.refs.remove(units)
+        if seconds is not None:
+            self.ref_done.append((units, seconds))
+
+    def frame(self, planned: int | None, units: int, seconds: float) -> None:
+        self.frames.remove(planned)
+        self.frame_done.append((units, seconds))
+
+    def left(self) -> float | None:
+        """Seconds left, ``None`` while a kind of work left has no measurement yet."""
+        total = 0.0
+        if self.refs:
+            if not self.ref_done:
+                return None
+            rate = sum(t for _, t in self.ref_done) / max(sum(u for u, _ in self.ref_done), 1)
+            total += rate * sum(self.refs)
+        if self.frames:
+            if not self.frame_done:
+                return None
+            xs = np.array([u for u, _ in self.frame_done], np.float64)
+            ts = np.array([t for _, t in self.frame_done], np.float64)
+            a, b = 0.0, float(ts.sum() / max(xs.sum(), 1.0))
+            if len(set(xs.tolist())) > 1:
+                b_fit, a_fit = np.polyfit(xs, ts, 1)
+                if a_fit >= 0 and b_fit >= 0:
+                    a, b = float(a_fit), float(b_fit)
+            total += sum(float(ts.mean()) if u is None else a + b * u for u in self.frames)
+        return total
+
+    def line(self, what: str, seconds: float) -> str:
+        left = self.left()
+        eta = "the time left is estimated once a reference and a frame are done" \
+            if left is None else f"about {_duration(left)} left"
+        return (f"{what} in {_duration(seconds)}; "
+                f"{_duration(time.perf_counter() - self.t0)} so far, {eta}")
 
 
 def _measure(dev, buf, variants, oidn: bool, repeats: int):
@@ -323,6 +423,27 @@ def _measure(dev, buf, variants, oidn: bool, repeats: int):
         ratio = statistics.median(t / max(b, 1e-6) for t, b in zip(ts, box_times))
         res.append((lab, m, k, runner, statistics.median(ts), ratio))
     return res
+
+
+def _plan_line(scenes, spps, inputs, settings: int, size, repeats: int,
+               to_render: dict[str, int], cached: int, cache: Path) -> str:
+    """What a trade will run, in one line."""
+    frames = len(scenes) * len(spps) + len(inputs)
+    what = f"{len(scenes)} scenes x {len(spps)} spp ({','.join(map(str, spps))})" \
+        if scenes else ""
+    if inputs:
+        what += f"{' + ' if what else ''}{len(inputs)} frames of yours"
+        what = f"({what} = {frames} frames)" if scenes else what
+    refs = ""
+    if to_render:
+        refs = (f"; {len(to_render)} references to render at "
+                f"{'/'.join(map(str, sorted(set(to_render.values()))))} spp")
+    if cached:
+        refs += f"; {cached} references cached in {cache}"
+    rounds = f"{repeats} paired round{'s' * (repeats != 1)}"
+    return (f"{what} x {settings} settings = {frames * settings} measurements at "
+            f"{size[0]}x{size[1]}, each {rounds} after a warm-up{refs}; "
+            f"the time left is estimated once a reference and a frame are done")
 
 
 def _verdicts(rows: list[dict]) -> list[dict]:

@@ -43,6 +43,9 @@ from .layers import SweepLayerResolve, SweepLayerSums
 from .prepare import SweepPrepare
 from .resolve import TILE_MERGES, tile_local_bytes
 
+#: the plans of ``sort``: every one, whatever the device (``None`` picks one)
+SORTS = ("block", "tile", "pixel")
+
 
 def default_sort(context, scales: int, spp: int) -> str:
     """``"block"`` on CPUs (measured fastest there) where it fits, ``"tile"`` elsewhere."""
@@ -104,7 +107,10 @@ def check_knobs(context, info, scales, dof_layers, exponent, smooth_motion, diam
                                 f">= 2^-126)")
     smooth_motion = check_bool("smooth_motion", smooth_motion, none_ok=True)
     diameter_scale = check_float("diameter_scale", diameter_scale, 0.0, MAX_DIAMETER_SCALE)
-    sort = check_choice("sort", sort, ("block", "tile", "pixel"), none_ok=True)
+    if isinstance(sort, str) and sort not in SORTS:  # every plan, and what None picks
+        raise ValueError(f"sort: must be one of {', '.join(map(repr, SORTS))} (or None: "
+                         f"'block' on CPUs where it fits, else 'tile'), got {sort!r}")
+    sort = check_choice("sort", sort, SORTS, none_ok=True)
     tile_merge = check_choice("tile_merge", tile_merge, TILE_MERGES, none_ok=True)
     specialize = check_bool("specialize", specialize)
     dev = context.devices[0]
