@@ -13,11 +13,12 @@ produced) on the device need not come back to the host to be checked.
   :mod:`clrecon.samples`: colour, depth, CoC, motion).
 
 Agreement with the host: validation verdicts, first bad samples, counts, ``min_depth``,
-``max_depth`` and ``miss_fraction`` are exact. ``max_abs_coc`` is computed in float on the
-device (the host rounds a float64 coc to float32) and ``max_abs_motion`` is a float
-length (the host: a float64 sqrt): both agree within a few ulp. Without fp64 on the
-device, the lens rule is evaluated in float and may differ from the host for samples within
-an ulp of the unit circle's tolerance.
+``max_depth`` and ``miss_fraction`` are exact (the per-sample CoC bound is one depth
+comparison against the host's exact threshold, :func:`clrecon.samples.coc_min_depth`).
+``max_abs_coc`` is computed in float on the device (the host rounds a float64 coc to
+float32) and ``max_abs_motion`` is a float length (the host: a float64 sqrt): both agree
+within a few ulp. Without fp64 on the device, the lens rule is evaluated in float and may
+differ from the host for samples within an ulp of the unit circle's tolerance.
 
 Limits: ``N = H * W * S < 2**31`` (uint indices and counts; larger frames are refused).
 The result buffer of a pass is shared by its calls: one call in flight per pass object

@@ -484,8 +484,14 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     too while the frame's description is unchanged; any other frame is planned afresh
     (kernels come from the build cache), so the image is always that of a plan made for this
     frame. Invalid samples raise the ``ValueError`` of
-    :meth:`SampleBuffer.validate(allow_negative) <SampleBuffer.validate>`; with
-    ``allow_negative`` negative radiance is accepted and every method is linear in it.
+    :meth:`SampleBuffer.validate(allow_negative) <SampleBuffer.validate>`.
+
+    With ``allow_negative`` negative radiance is accepted and every method gives the linear
+    combination ``f(c+) - f(c-)`` of its images of the positive and negative parts: box,
+    sweep and layered are linear in the colour (one run); a pipeline whose class sets
+    ``color_linear = False`` (splat: its composite clamps each layer's colour at 0 against
+    the integration's ringing) runs twice on a frame with negative colours, once per part,
+    and the image is the difference (``pass_ms`` sums both runs).
     """
     if not isinstance(buf, SampleBuffer):
         raise TypeError(f"buf must be a SampleBuffer, got {type(buf).__name__}")
@@ -510,9 +516,24 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     nbytes = buf.height * buf.width * 12
     out = sess.out if sess is not None and sess.out.size == nbytes else cl.Buffer(
         dev.context, cl.mem_flags.READ_WRITE, size=nbytes)
+    split = (allow_negative and not getattr(pipe, "color_linear", True)
+             and bool(buf.color.min() < 0))
+    if split:  # the positive part first, then the negative one into the same buffer
+        cl.enqueue_copy(dev.queue, samples["color"], np.maximum(buf.color, 0),
+                        is_blocking=True)
     ev = pipe(dev.queue, samples, out)
     image = np.empty((buf.height, buf.width, 3), np.float32)
     cl.enqueue_copy(dev.queue, image, out, wait_for=[ev])
+    pass_ms = pipe.pass_times_ms()
+    if split:
+        cl.enqueue_copy(dev.queue, samples["color"], np.maximum(-buf.color, 0),
+                        is_blocking=True)
+        ev = pipe(dev.queue, samples, out)
+        negative = np.empty_like(image)
+        cl.enqueue_copy(dev.queue, negative, out, wait_for=[ev])
+        image -= negative
+        for name, ms in pipe.pass_times_ms().items():
+            pass_ms[name] = pass_ms.get(name, 0.0) + ms
     t3 = time.perf_counter()
     _sessions[key] = _Session(pipe, samples, out)
     while len(_sessions) > _MAX_SESSIONS:
@@ -521,7 +542,7 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
         image=image,
         method=pipe.describe(),
         device=dev.info.label,
-        pass_ms=pipe.pass_times_ms(),
+        pass_ms=pass_ms,
         upload_ms=(t1 - t0) * 1e3,
         total_ms=(t3 - t0) * 1e3,
         inspect_ms=(t2 - t1) * 1e3,
@@ -542,8 +563,8 @@ def reconstruct(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Dev
     device : int, str, Device or None
         See :func:`clrecon.device.get_device`.
     allow_negative : bool
-        Accept negative colours (validation refuses them by default); every method is
-        linear in the colour, so negative radiance comes out as such.
+        Accept negative colours (validation refuses them by default); every method then
+        gives ``f(c+) - f(c-)``, linear in the colour (see :func:`run`).
     **knobs
         Method-specific settings; unknown names raise ``TypeError``.
     """

@@ -5,9 +5,9 @@ Field layout (``S`` samples per pixel, sample ``(py, px, i)``):
 ========== ============== ==============================================================
 field      shape          meaning
 ========== ============== ==============================================================
-color      (H, W, S, 3)   linear radiance (HDR values far above 1 are normal)
+color      (H, W, S, 3)   linear radiance (HDR values far above 1 are normal), <= 1e30
 position   (H, W, S, 2)   sensor position in pixels (x right, y down), inside its pixel
-depth      (H, W, S)      camera-space depth ``w > 0``; ``inf`` (or >= 1e30) for a miss
+depth      (H, W, S)      camera-space depth ``w >= 1e-20``; ``inf`` (or >= 1e30): a miss
 lens       (H, W, S, 2)   lens coordinates ``(u, v)`` in the unit disk
 time       (H, W, S)      shutter time in [0, 1]
 motion     (H, W, S, 2)   pinhole screen displacement (pixels) from t=0 to t=1
@@ -22,19 +22,19 @@ device, same rules and messages), chosen so that no kernel overflows float32 on 
 frame:
 
 * colour: every channel finite and in ``[0, COLOR_MAX]``, ``COLOR_MAX = 1e30`` (compared
-  as float32); ``allow_negative=True`` accepts ``[-COLOR_MAX, COLOR_MAX]``, and every method
-  is then linear in the colour (a negative radiance comes out negative, as the linear
-  combination of the positive and negative parts). The kernels only ever add colours times
-  weights (no kernel squares a colour); the largest sums (a layered grid pixel, a splat
-  layer image and its convolution pyramid) stay far below the 3.4e8 x ``COLOR_MAX`` that
-  float32 holds.
+  as float32), so that float32 holds a sum of 3.4e8 colours at the bound. The kernels only
+  add colours times weights (none squares a colour), and their largest sums are far below
+  that: box's S per pixel, sweep's 49 S per window, splat's layer images and pyramid (~5x
+  the largest colour), layered's filtered grids (~1.6e3x at 512x512 16 spp, proportional to
+  spp): safe beyond 1e5 spp. ``allow_negative=True`` accepts ``[-COLOR_MAX, COLOR_MAX]``;
+  every method then gives ``f(c+) - f(c-)`` (see :func:`clrecon.pipeline.run`).
 * depth: ``>= MIN_DEPTH = 1e-20`` (float32) or a miss; ``1 / depth <= 1e20`` then fits
   float32 for the methods that place samples in 1/depth (layered buckets, splat layers).
 * CoC: the coefficients ``|c1| <= COC_MAX = 2**20`` px (the CoC of a miss) and
   ``|c0| <= COC_MAX * 1e30``, and every hit's ``|coc(depth)| <= COC_MAX`` (about a million
-  pixels: wider than any frame, so nothing a frame can show is refused; a sample at the
-  near plane of a defocused camera, ~5e5 px, is valid). CoC squares (layered's statistics)
-  stay below 1e12 per sample.
+  pixels, wider than any frame: a larger CoC would only spread a sample evenly over it; a
+  sample at the near plane of a defocused camera, ~5e5 px, is valid). A CoC square
+  (layered's statistics) is then at most 2**40 per sample.
 * motion: each component in ``[-MOTION_MAX, MOTION_MAX]``, ``MOTION_MAX = 2**16`` px (a
   length of at most 2**16.5 px, wider than any frame); it bounds splat's motion
   sub-segments (``ceil(|motion| / 192)`` <= 483 per sample).

@@ -251,12 +251,13 @@ void inspect_samples(__global const float *depth, __global const float *color,
         dmax = max(dmax, hit ? key : 0u);
 #if HAS_COLOR
         const float3 c = load3(color, i);
-        RULE(R_COLOR, !(c.x >= color_lo && c.x <= COLOR_MAX && c.y >= color_lo &&
-                        c.y <= COLOR_MAX && c.z >= color_lo && c.z <= COLOR_MAX));
+        /* & of the comparisons, not &&: the branches of && stop PoCL vectorising (5x) */
+        RULE(R_COLOR, !((c.x >= color_lo) & (c.x <= COLOR_MAX) & (c.y >= color_lo) &
+                        (c.y <= COLOR_MAX) & (c.z >= color_lo) & (c.z <= COLOR_MAX)));
 #endif
 #if HAS_MOTION
         const float2 m = load2(motion, i);
-        RULE(R_MOTION, !(fabs(m.x) <= MOTION_MAX && fabs(m.y) <= MOTION_MAX));
+        RULE(R_MOTION, !((fabs(m.x) <= MOTION_MAX) & (fabs(m.y) <= MOTION_MAX)));
         motion_bits = max(motion_bits, abs_bits(length2(m.x, m.y)));
 #endif
 #if HAS_TIME

@@ -262,6 +262,47 @@ def test_validate_messages_match_whole_array_formulas(block, seed):
         getattr(buf, name)[y, x, i] = vals[int(rng.integers(len(vals)))]
     expected = _message(ref_validate, buf)
     assert _message(SampleBuffer.validate, buf) == expected
+    allowed = _message(lambda b: ref_validate(b, allow_negative=True), buf)
+    assert _message(lambda b: b.validate(allow_negative=True), buf) == allowed
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_coc_rule_matches_whole_array_formula(block, seed):
+    """Random models (both signs of c0, |c1| up to the bound) and depths on both sides of
+    each model's threshold: the block scan's one-comparison filter decides as the
+    per-sample formula."""
+    rng = np.random.default_rng(500 + seed)
+    c1 = float(rng.choice([0.0, 1.0, -7.5, 2.0**20, -(2.0**20), 1e5]))
+    c0 = float(rng.choice([-1.0, 1.0]) * 10.0 ** rng.uniform(-12, 36))
+    model = CocModel(c0=c0, c1=c1)
+    buf = _frame(rng, 5, 6, 4, model=model)
+    lo = max(smp.coc_min_depth(c0, c1), F32(1e-20))
+    hit = buf.depth < MISS_DEPTH
+    # hits above the threshold (those it leaves: all of them when no hit is valid)
+    buf.depth[hit] = np.minimum(lo * rng.uniform(1, 4, int(hit.sum())),
+                                np.nextafter(F32(MISS_DEPTH), F32(0)))
+    near = [lo, np.nextafter(lo, F32(0)), np.nextafter(lo, F32(np.inf)), lo * F32(0.5),
+            lo * F32(2)]
+    for _ in range(int(rng.integers(0, 5))):
+        y, x, i = (int(rng.integers(n)) for n in buf.shape)
+        buf.depth[y, x, i] = max(F32(near[int(rng.integers(len(near)))]), F32(1e-20))
+    assert _message(SampleBuffer.validate, buf) == _message(ref_validate, buf)
+
+
+def test_coc_rule_of_a_subclassed_model():
+    class Odd(CocModel):  # not monotonic in depth: checked sample by sample
+        def coc(self, depth):
+            d = np.asarray(depth, np.float64)
+            return np.where(np.abs(d - 3.0) < 0.5, 2.0**21, 1.0).astype(np.float32)
+
+    buf = _frame(np.random.default_rng(3), 4, 5, 3, model=Odd())
+    buf.depth[:] = 10.0
+    buf.validate()
+    buf.depth[2, 1, 1] = 3.2
+    buf.depth[3, 0, 2] = 2.9
+    msg = _message(SampleBuffer.validate, buf)
+    assert msg == _message(ref_validate, buf)
+    assert msg.startswith("coc: sample (y=2, x=1, i=1)") and msg.endswith("(2 bad samples)")
 
 
 @pytest.mark.parametrize("name", list(FIELDS))

@@ -46,6 +46,9 @@ log = logging.getLogger(__name__)
 PSF_MODELS = tuple(MODELS)
 #: default ``max_error``: spreadlet L1 error above which a cell is drawn densely
 MAX_ERROR = 0.05
+#: the longest motion the host arithmetic takes from a frame description (validated frames
+#: stay below MOTION_MAX * sqrt(2); beyond this the count of sub-segments is clamped)
+_HOST_MOTION_LIMIT = 2.0**31
 #: knob ranges: ``layers`` in [1, 64] (each layer is three full-frame float4 images);
 #: ``fast_ratio`` in [0, 1e6] (beyond any PSF's dense/sparse size ratio: every cell dense)
 MAX_LAYERS = 64
@@ -56,6 +59,10 @@ MAX_FAST_RATIO = 1e6
 class SplatPipeline(Pipeline):
     name = "splat"
     fields = tuple(FIELDS)
+    #: splat_composite clamps each layer's colour at 0 (the integration rings below it):
+    #: not linear in the colour, so run(allow_negative=True) reconstructs the positive and
+    #: negative parts of a frame apart and subtracts them
+    color_linear = False
 
     def __init__(self, context, info, psf: str | None = None, layers: int = 4,
                  pyramid: str = "f7", dense: bool = False, fast_ratio: float = 1.0,
@@ -93,7 +100,10 @@ class SplatPipeline(Pipeline):
                         "the largest PSF stands in for larger blur", self.psf, smax[0],
                         info.max_abs_coc)
         motion = info.max_abs_motion if ndim == 2 else 0.0
-        self.motion_split = int(np.ceil(motion / smax[-1])) if motion > smax[-1] else 1
+        # validation bounds |motion| (components <= MOTION_MAX); a description that vouches
+        # for more (even inf) is clamped before int() so that the host arithmetic holds
+        split = min(motion, _HOST_MOTION_LIMIT) / smax[-1]
+        self.motion_split = int(np.ceil(split)) if split > 1 else 1
         # how far a (sub-)PSF's centre lies from its sample: |coc| + |motion| / 2, and up to
         # |coc| + |motion| for the outer sub-segments of a split one
         self.shift = min(info.max_abs_coc, smax[0]) + (

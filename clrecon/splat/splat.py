@@ -42,7 +42,9 @@ class Splat:
         """Smallest owner tile for ``k x k`` phases: a sample writes within
         ``R = reach + shift + 1`` px of its pixel, and tiles of one phase, ``k - 1`` tiles
         apart, must not both reach a pixel: ``(k - 1) * tile > 2 R - 1``."""
-        r = int(reach) + int(np.ceil(shift)) + 1
+        # a shift beyond 2**30 px (validated frames stay below 2**17) only asks for one
+        # tile over the frame: clamped before int() so that no count overflows int32
+        r = int(reach) + int(np.ceil(min(float(shift), 2.0**30))) + 1
         # any larger tile is as safe; below 16 px the launch overhead per tile dominates
         return max((2 * r - 1) // (k - 1) + 1, MIN_TILE)
 
@@ -69,7 +71,8 @@ class Splat:
             self.events = [ev]
             return ev
         k = self.phases
-        tile = self.tile_size(reach, shift, k)
+        # a tile as large as the frame is one tile (one phase runs): as safe as any larger
+        tile = min(self.tile_size(reach, shift, k), max(w, h))
         nx, ny = -(-w // tile), -(-h // tile)
         self.events = []
         evs = wait_for
