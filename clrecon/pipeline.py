@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import inspect
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Callable, ClassVar
@@ -460,6 +461,7 @@ class _Session:
 #: (context, method, knobs) -> session, most recent last; at most _MAX_SESSIONS
 _sessions: dict[tuple, _Session] = {}
 _MAX_SESSIONS = 4
+_sessions_lock = threading.Lock()
 
 
 def clear_sessions() -> None:
@@ -502,7 +504,8 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     tune_env = tuple(sorted((k, v) for k, v in os.environ.items()
                             if k.startswith("CLRECON_TUNE_")))
     key = (dev.context.int_ptr, method, _knob_key(knobs), tune_env)
-    sess = _sessions.pop(key, None)
+    with _sessions_lock:  # batch runs one thread per device
+        sess = _sessions.pop(key, None)
     samples = DeviceSamples.upload(dev.queue, buf, FIELDS,
                                    into=None if sess is None else sess.samples)
     t1 = time.perf_counter()
@@ -535,9 +538,10 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
         for name, ms in pipe.pass_times_ms().items():
             pass_ms[name] = pass_ms.get(name, 0.0) + ms
     t3 = time.perf_counter()
-    _sessions[key] = _Session(pipe, samples, out)
-    while len(_sessions) > _MAX_SESSIONS:
-        _sessions.pop(next(iter(_sessions)))
+    with _sessions_lock:
+        _sessions[key] = _Session(pipe, samples, out)
+        while len(_sessions) > _MAX_SESSIONS:
+            _sessions.pop(next(iter(_sessions)))
     return Reconstruction(
         image=image,
         method=pipe.describe(),
