@@ -356,7 +356,7 @@ def cmd_reconstruct(args) -> int:
     _check_files(reads, {"-o": [str(args.output)]})
     _check_output("-o", args.output, IMAGE_EXTENSIONS)
     _stage(args, "reading samples", args.input)
-    buf = load_samples(args.input)
+    buf = load_samples(args.input, allow_negative=args.allow_negative)
     ref = None
     if args.reference:  # read before the output is written (and before the long part)
         from .io import load_image
@@ -364,7 +364,7 @@ def cmd_reconstruct(args) -> int:
         _stage(args, "reading the reference", args.reference)
         ref = load_image(args.reference)
     _stage(args, f"reconstructing {args.input} with {args.method}")
-    res = run(buf, args.method, args.device, **knobs)
+    res = run(buf, args.method, args.device, allow_negative=args.allow_negative, **knobs)
     _stage(args, "writing", args.output)
     save_image(args.output, res.image)
     out = {"input": str(args.input), "output": str(args.output), "device": res.device,
@@ -866,6 +866,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="splat: splat the dense PSF (the paper's Splatting baseline)")
     sp.add_argument("--json", action="store_true", help="print one JSON object")
     dev(sp)
+    sp.add_argument("--allow-negative", action="store_true",
+                    help="accept negative radiance (every method then stays linear in it)")
     sp.set_defaults(fn=cmd_reconstruct)
 
     cli_sequences.add_batch_parser(sub, dev, _device_list)

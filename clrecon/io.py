@@ -161,13 +161,15 @@ class ImageReadError(ValueError, OSError):
 # ==========================================================================================
 # public API
 # ==========================================================================================
-def load_samples(path: str | os.PathLike) -> SampleBuffer:
+def load_samples(path: str | os.PathLike, allow_negative: bool = False) -> SampleBuffer:
     """Load a sample buffer; the format follows the extension.
 
     Parameters
     ----------
     path : str or os.PathLike
         ``.bin`` / ``.txt`` (TLFR 1.3, header in ``path + ".header"``), ``.exr`` or ``.npz``.
+    allow_negative : bool
+        Accept negative radiance (see :meth:`SampleBuffer.validate`).
 
     Returns
     -------
@@ -192,7 +194,7 @@ def load_samples(path: str | os.PathLike) -> SampleBuffer:
         buf = _load_samples_exr(path)
     else:
         buf = _load_samples_npz(path)
-    return buf.validate()
+    return buf.validate(allow_negative=allow_negative)
 
 
 def save_samples(

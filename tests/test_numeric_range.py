@@ -530,3 +530,22 @@ def test_run_refuses_out_of_range_frames(device, method, what):
         clrecon.reconstruct(buf, method, device)
     assert str(info.value).startswith(BREAKS[what]), str(info.value)
     assert str(info.value) == _message(SampleBuffer.validate, buf)
+
+
+def test_negative_radiance_from_a_file_through_the_cli(device, tmp_path, capsys):
+    """A file with negative radiance is refused by name unless --allow-negative."""
+    from clrecon.cli import main
+    from clrecon.io import save_samples
+
+    buf = SampleBuffer.zeros(4, 6, 2)
+    buf.color[:] = 0.5
+    buf.color[1, 2, 0, 1] = -0.25
+    path = tmp_path / "neg.npz"
+    np.savez(path, **buf.arrays(), coc=np.array([0.0, 0.0]), format_version=1)
+    out = tmp_path / "out.exr"
+    dev = ["--device", str(device.info.index)]
+    assert main(["reconstruct", str(path), "-o", str(out), *dev]) == 2
+    assert "color: sample (y=1, x=2, i=0)" in capsys.readouterr().err
+    assert main(["reconstruct", str(path), "-o", str(out), "--allow-negative", *dev]) == 0
+    with pytest.raises(ValueError, match="color"):
+        save_samples(str(tmp_path / "again.npz"), buf)
