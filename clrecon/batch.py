@@ -31,6 +31,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from .fsutil import write_atomic
+
 SAMPLE_EXTENSIONS = (".bin", ".txt", ".exr", ".npz")
 
 
@@ -222,10 +224,4 @@ def _previous_records(path: Path) -> dict:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(json.dumps(data, indent=1, default=str))
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_atomic(path, json.dumps(data, indent=1, default=str).encode())

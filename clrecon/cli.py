@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import cli_sequences
+from .fsutil import cache_dir, write_atomic
 
 log = logging.getLogger("clrecon")
 
@@ -441,21 +442,7 @@ def reference_cache_dir() -> Path | None:
     """Folder of the demo's cached references, or ``None`` when caching is off:
     ``$CLRECON_CACHE_DIR/references`` (``off`` or empty: no cache), else
     ``$XDG_CACHE_HOME/clrecon/references``, else ``~/.cache/clrecon/references``."""
-    from .device import ENV_CACHE_DIR
-
-    env = os.environ.get(ENV_CACHE_DIR)
-    if env is not None:
-        env = env.strip()
-        if not env or env.lower() == "off":
-            return None
-        return Path(env).expanduser() / "references"
-    xdg = os.environ.get("XDG_CACHE_HOME", "")
-    if xdg and os.path.isabs(xdg):
-        return Path(xdg) / "clrecon" / "references"
-    try:
-        return Path.home() / ".cache" / "clrecon" / "references"
-    except (RuntimeError, KeyError):  # no home directory to be found
-        return None
+    return cache_dir("references")
 
 
 def _reference_cache_name(scene, w: int, h: int, spp: int, seed: int) -> str:
@@ -495,24 +482,15 @@ def _load_cached_reference(path: Path | None, w: int, h: int) -> np.ndarray | No
 
 def _store_cached_reference(path: Path | None, img: np.ndarray) -> bool:
     """Write ``img`` to ``path`` atomically; ``False`` (logged) where it cannot be written."""
-    import tempfile
+    import io
 
     if path is None:
         return False
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:24]}.", suffix=".tmp",
-                                   dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.save(f, np.ascontiguousarray(img, np.float32), allow_pickle=False)
-            os.replace(tmp, path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
+        data = io.BytesIO()
+        np.save(data, np.ascontiguousarray(img, np.float32), allow_pickle=False)
+        write_atomic(path, data.getvalue())
         return True
     except OSError as exc:  # read-only or full disk: the demo goes on without it
         log.info("reference cache: could not write %s (%s)", path, exc)

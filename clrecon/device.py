@@ -40,9 +40,9 @@ import pyopencl as cl
 
 from ._resources import kernels_dir
 from .errors import DeviceError, KernelBuildError
+from .fsutil import ENV_CACHE_DIR, cache_dir, write_atomic
 
 ENV_DEVICE = "CLRECON_DEVICE"
-ENV_CACHE_DIR = "CLRECON_CACHE_DIR"
 
 logger = logging.getLogger(__name__)
 
@@ -438,19 +438,7 @@ def program_cache_dir() -> Path | None:
     ``$CLRECON_CACHE_DIR`` a PoCL device relies on PoCL's own kernel cache instead
     (:func:`_self_caching`).
     """
-    env = os.environ.get(ENV_CACHE_DIR)
-    if env is not None:
-        env = env.strip()
-        if not env or env.lower() == "off":
-            return None
-        return Path(env).expanduser()
-    xdg = os.environ.get("XDG_CACHE_HOME", "")
-    if xdg and os.path.isabs(xdg):
-        return Path(xdg) / "clrecon" / "programs"
-    try:
-        return Path.home() / ".cache" / "clrecon" / "programs"
-    except (RuntimeError, KeyError):  # no home directory to be found
-        return None
+    return cache_dir("programs", env_subdir=False)
 
 
 def program_cache_stats() -> dict[str, int]:
@@ -571,18 +559,7 @@ def _store_cached(prg: cl.Program, entries: list[tuple[cl.Device, Path]], label:
                 continue
             data = _CACHE_MAGIC + hashlib.sha256(binary).digest() + binary
             path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:16]}.", suffix=".tmp",
-                                       dir=path.parent)
-            try:
-                with os.fdopen(fd, "wb") as f:
-                    f.write(data)
-                os.replace(tmp, path)
-            except BaseException:
-                try:
-                    os.unlink(tmp)
-                except OSError:
-                    pass
-                raise
+            write_atomic(path, data)
             _cache_stats["writes"] += 1
     except Exception as exc:  # read-only or full disk, odd driver: keep the built program
         logger.debug("program cache: could not store %s: %s", label, exc)

@@ -230,6 +230,21 @@ def _time_variant(dev: Device, buf, method: str, knobs: dict, repeats: int):
     return image, statistics.median(totals), pass_ms, pipe.describe()
 
 
+
+def frame_sources(scenes, inputs) -> tuple[list[str], list[tuple[str, str]], list[str]]:
+    """``(scenes, inputs, input names)`` of a report: built-in scenes (default: all, or none
+    when the user gives frames) and the user's ``(samples, reference)`` pairs, named after
+    the samples file; every name unique."""
+    inputs = [(str(a), str(b)) for a, b in (inputs or [])]
+    scenes = list((SCENES if not inputs else []) if scenes is None else scenes)
+    if not scenes and not inputs:
+        raise ValueError("scenes: need at least one (or an input frame)")
+    stems = [Path(a).stem for a, _ in inputs]
+    if len(set(stems) | set(scenes)) != len(stems) + len(scenes):
+        raise ValueError(f"inputs: frame names must be unique and differ from the scenes: "
+                         f"{stems}")
+    return scenes, inputs, stems
+
 def methods_table(scenes: Sequence[str] | None = None,
                   variants: Sequence[Variant] | None = None,
                   size: tuple[int, int] = (512, 512), spp: int = 16,
@@ -279,14 +294,7 @@ def methods_table(scenes: Sequence[str] | None = None,
     TypeError
         A variant's knob that its method does not take.
     """
-    inputs = [(str(a), str(b)) for a, b in (inputs or [])]
-    scenes = list((SCENES if not inputs else []) if scenes is None else scenes)
-    if not scenes and not inputs:
-        raise ValueError("scenes: need at least one (or an input frame)")
-    stems = [Path(a).stem for a, _ in inputs]
-    if len(set(stems) | set(scenes)) != len(stems) + len(scenes):
-        raise ValueError(f"inputs: frame names must be unique and differ from the scenes: "
-                         f"{stems}")
+    scenes, inputs, stems = frame_sources(scenes, inputs)
     variants = _check_variants(DEFAULT_VARIANTS if variants is None else variants)
     w, h = (int(v) for v in size)
     for name, v in (("width", w), ("height", h), ("spp", spp), ("repeats", repeats)):

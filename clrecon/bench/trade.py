@@ -37,8 +37,8 @@ from ..device import Device, DeviceSpec, get_device
 from ..io import load_image, load_samples, save_image, tonemap_srgb
 from ..metrics import evaluate
 from ..pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline
-from ..scenes import SCENES, get_scene, render_reference, render_samples
-from .methods import CROP, Progress, _check_variants, hardest_region
+from ..scenes import get_scene, render_reference, render_samples
+from .methods import CROP, Progress, _check_variants, frame_sources, hardest_region
 
 #: per method, the settings that trade speed for accuracy (label, knobs); a method that is
 #: not registered is skipped, a knob a method does not take is an error
@@ -230,14 +230,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         scene and spp: the clrecon settings that beat each OIDN mode in both time and PSNR)
         and ``markdown``.
     """
-    inputs = [(str(a), str(b)) for a, b in (inputs or [])]
-    scenes = list((SCENES if not inputs else []) if scenes is None else scenes)
-    if not scenes and not inputs:
-        raise ValueError("scenes: need at least one (or an input frame)")
-    stems = [Path(a).stem for a, _ in inputs]
-    if len(set(stems) | set(scenes)) != len(stems) + len(scenes):
-        raise ValueError(f"inputs: frame names must be unique and differ from the scenes: "
-                         f"{stems}")
+    scenes, inputs, stems = frame_sources(scenes, inputs)
     scene_objs = {n: get_scene(n) for n in scenes}
     spps = [int(s) for s in spps]
     if not spps or min(spps) < 1:

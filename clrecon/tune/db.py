@@ -29,12 +29,12 @@ import math
 import operator
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Union
 
+from ..fsutil import write_atomic
 from .tuner import Config, TuneResult
 
 if TYPE_CHECKING:  # no OpenCL import at run time: this module is pure logic
@@ -389,19 +389,6 @@ def save_result(
 
     mode = (path.stat().st_mode & 0o777) if path.exists() else 0o644
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    write_atomic(path, text.encode("utf-8"), mode)
     _cache.pop(str(path), None)
     return path
