@@ -233,11 +233,13 @@ class Pipeline:
     @property
     def buffers(self) -> dict[str, cl.Buffer]:
         """The pipeline's own temporaries (allocated on first use)."""
-        for name, size in self.plan.temporaries.items():
-            if name not in self._own:
-                self._own[name] = cl.Buffer(self.context, cl.mem_flags.READ_WRITE,
-                                            max(int(size), 4))
-        return self._own
+        return {name: self._own_buffer(name) for name in self.plan.temporaries}
+
+    def _own_buffer(self, name: str) -> cl.Buffer:
+        if name not in self._own:
+            self._own[name] = cl.Buffer(self.context, cl.mem_flags.READ_WRITE,
+                                        max(int(self.plan.temporaries[name]), 4))
+        return self._own[name]
 
     def describe(self) -> dict:
         """Mode and knobs that ran (reported by ``--json``)."""
@@ -264,10 +266,7 @@ class Pipeline:
             raise ValueError(f"out: buffer of {out.size} bytes is too small for the "
                              f"{samples.width}x{samples.height} image "
                              f"({samples.height * samples.width * 12} bytes)")
-        missing = [f for f in self.plan.fields if f not in samples.buffers]
-        if missing:
-            raise ValueError(f"samples: the {self.name} plan reads {list(self.plan.fields)}; "
-                             f"missing {missing}")
+        self._check_fields(samples)
         info = self._frame_info(queue, samples, wait_for)
         bad = self.check(info)
         if bad:
@@ -276,6 +275,7 @@ class Pipeline:
                                  ". Build a pipeline for this frame, or make it with "
                                  "grow=True to re-plan.")
             self.regrow(covering(self.info, info))
+            self._check_fields(samples)  # the new plan may read more (motion, say)
         bufs = dict(samples.buffers)
         bufs["out"] = out
         bufs.update(self._bind(temporaries or {}))
@@ -287,6 +287,12 @@ class Pipeline:
             self.events.extend(evs)
             wait = [ev for _, ev in evs]
         return self.events[-1][1]
+
+    def _check_fields(self, samples: DeviceSamples) -> None:
+        missing = [f for f in self.plan.fields if f not in samples.buffers]
+        if missing:
+            raise ValueError(f"samples: the {self.name} plan reads {list(self.plan.fields)}; "
+                             f"missing {missing}")
 
     def _frame_info(self, queue, samples: DeviceSamples, wait_for) -> FrameInfo:
         if samples.info is not None:
@@ -310,20 +316,13 @@ class Pipeline:
             if not isinstance(b, cl.MemoryObjectHolder) or b.size < temps[name]:
                 raise ValueError(f"temporaries: {name!r} needs {temps[name]} bytes, got "
                                  f"{getattr(b, 'size', type(b).__name__)}")
-        own = {}
-        for name, size in temps.items():
-            if name not in given:
-                if name not in self._own:
-                    self._own[name] = cl.Buffer(self.context, cl.mem_flags.READ_WRITE,
-                                                max(int(size), 4))
-                own[name] = self._own[name]
-        return own | given
+        return {name: self._own_buffer(name) for name in temps if name not in given} | given
 
     def regrow(self, info: FrameInfo) -> None:
-        """Re-plan for ``info`` with the same knobs (kernels come from the build cache)."""
-        grow = getattr(self, "grow", False)
+        """Re-plan for ``info`` with the same knobs (kernels come from the build cache);
+        ``grow`` and ``knobs`` (set by :func:`make_pipeline`) are instance attributes that
+        ``__init__`` leaves alone."""
         self.__init__(self.context, info, **getattr(self, "knobs", {}))
-        self.grow, self.knobs = grow, getattr(self, "knobs", {})
 
     def pass_times_ms(self) -> dict[str, float]:
         """Per-pass device times of the last run (events must have completed; the queue

@@ -299,3 +299,20 @@ def test_layered_4096_under_a_memory_cap_is_refused_not_aborted(device):
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.startswith("refused: the layered plan for 4096x4096"), proc.stdout
+
+
+def test_grow_to_a_plan_that_reads_more_fields(device):
+    """A layered plan for a static frame reads no motion; grown for a moving frame it does:
+    with every field uploaded it runs, with the static plan's fields only it names the
+    missing ones instead of failing inside a pass."""
+    static, moving = _frame("spheres", device=device), _frame("fence", device=device)
+    pipe = make_pipeline("layered", device.context, static.inspect(), grow=True)
+    assert "motion" not in pipe.plan.fields
+    few = DeviceSamples.upload(device.queue, moving, pipe.fields, info=moving.inspect())
+    with pytest.raises(ValueError, match=r"missing \['time'\]"):
+        pipe(device.queue, few, _out(device, moving))
+    pipe = make_pipeline("layered", device.context, static.inspect(), grow=True)
+    s = DeviceSamples.upload(device.queue, moving, info=moving.inspect())
+    out = _out(device, moving)
+    img = _read(device, out, moving, pipe(device.queue, s, out))
+    assert "motion" in pipe.plan.fields and np.isfinite(img).all() and img.max() > 0

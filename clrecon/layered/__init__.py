@@ -159,8 +159,11 @@ class LayeredPipeline(Pipeline):
         gmax = _guard(info, sigma_x, int(guard))
         self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
                           spp=info.spp, has_motion=motion, reach_max=int(reach))
+        # the sample fields the passes read (not self.fields: that is what a caller
+        # uploads, set by set_plan, and stale while re-planning)
+        self.reads = ("color", "position", "depth", "lens", "time", "motion")
         if not motion:  # defocus only: shutter time and motion are never read
-            self.fields = ("color", "position", "depth", "lens")
+            self.reads = ("color", "position", "depth", "lens")
         self.tuning: dict[str, str] = {}
         # what the plan rests on (checked on every frame): the motion terms compiled out of a
         # static frame; the guard band sized from the largest blur
@@ -253,7 +256,7 @@ class LayeredPipeline(Pipeline):
                  if k != "atlas"}  # the atlas is filter_mip's own
         ntx, nty = self.lay.tiles(info.width, info.height)
         nslots = ntx * nty * self.lay.maxp
-        fields = self.fields
+        fields = self.reads
 
         def stats(queue, f, wait):
             kabc = self.bucket_params(f.samples, f.info)
