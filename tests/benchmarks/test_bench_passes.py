@@ -40,21 +40,25 @@ VARIANTS = {
 }
 
 #: per variant, each pass as ``launch(pipe, queue, samples, out) -> cl.Event`` (the same calls
-#: as the pipeline's ``enqueue``, on the temporaries it owns)
+#: as the plan's steps, on the temporaries the pipeline owns)
 PASSES = {
     "box": {
         "box": lambda p, q, s, o: p.box(q, s["color"], o, s.width, s.height, s.spp),
     },
     "sweep 2-scale": {
-        "sweep_prepare": lambda p, q, s, o: p.prepare(q, s, p.diameter_scale, p.keys, p.colors),
-        "sweep_resolve": lambda p, q, s, o: p.resolve(q, p.keys, p.colors, s.width, s.height, o),
+        "sweep_prepare": lambda p, q, s, o: p.prepare(q, s, p.diameter_scale,
+                                                      p.buffers["keys"], p.buffers["colors"]),
+        "sweep_resolve": lambda p, q, s, o: p.resolve(q, p.buffers["keys"], p.buffers["colors"],
+                                                      s.width, s.height, o),
     },
     "sweep 2-scale block": {
         "sweep_block": lambda p, q, s, o: p.block(q, s, p.diameter_scale, o),
     },
     "sweep dof-layers": {
-        "sweep_layer_sums": lambda p, q, s, o: p.sums_pass(q, s, p.diameter_scale, p.sums),
-        "sweep_layer_resolve": lambda p, q, s, o: p.combine(q, p.sums, s.width, s.height, o),
+        "sweep_layer_sums": lambda p, q, s, o: p.sums_pass(q, s, p.diameter_scale,
+                                                           p.buffers["sums"]),
+        "sweep_layer_resolve": lambda p, q, s, o: p.combine(q, p.buffers["sums"], s.width,
+                                                            s.height, o),
     },
 }
 
