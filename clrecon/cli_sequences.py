@@ -31,27 +31,38 @@ def _frames(n) -> int:
     return n
 
 
-def scene_sequence(args, bar_cls) -> int:
-    """``clrecon scene NAME --frames N -o DIR``: DIR/NAME_0000.<format>, ..."""
-    from .io import save_samples
-    from .scenes import get_scene, render_samples
+def _render_sequence(args, bar_cls, what: str, render, save, ext: str):
+    """Render frame ``k`` of the animated scene with ``render(scene_k, w, h, seed)`` and
+    ``save(path, result)`` it as ``DIR/<name>_<k>.<ext>``: ``(frames, size, seconds, dir,
+    scene)``."""
+    from .scenes import get_scene
     from .scenes.animate import frame_of, frame_seed
 
     n = _frames(args.frames)
     out = _sequence_dir("-o", args.output)
     scene = get_scene(args.name)
     w, h = args.size or scene.default_size
-    bar = bar_cls(f"scene {args.name}", unit="frame")
+    bar = bar_cls(f"{what} {args.name}", unit="frame")
     t0 = time.perf_counter()
     try:
         for k in range(n):
-            buf = render_samples(frame_of(scene, k), w, h, args.spp,
-                                 seed=frame_seed(args.seed, k), device=args.device)
-            save_samples(str(out / f"{frame_name(args.name, k)}.{args.format}"), buf)
+            result = render(frame_of(scene, k), w, h, frame_seed(args.seed, k))
+            save(str(out / f"{frame_name(args.name, k)}.{ext}"), result)
             bar(k + 1, n)
     finally:
         bar.close()
-    print(f"{args.name}: {n} frames {w}x{h}, {args.spp} spp in {time.perf_counter() - t0:.1f} s "
+    return n, (w, h), time.perf_counter() - t0, out, scene
+
+
+def scene_sequence(args, bar_cls) -> int:
+    """``clrecon scene NAME --frames N -o DIR``: DIR/NAME_0000.<format>, ..."""
+    from .io import save_samples
+    from .scenes import render_samples
+
+    n, (w, h), dt, out, _ = _render_sequence(
+        args, bar_cls, "scene", lambda sc, w, h, seed: render_samples(
+            sc, w, h, args.spp, seed=seed, device=args.device), save_samples, args.format)
+    print(f"{args.name}: {n} frames {w}x{h}, {args.spp} spp in {dt:.1f} s "
           f"-> {out}/{frame_name(args.name, 0)}.{args.format} ...")
     return 0
 
@@ -60,26 +71,13 @@ def reference_sequence(args, bar_cls) -> int:
     """``clrecon reference NAME --frames N -o DIR``: DIR/NAME_0000.exr, ... (the stems of
     ``scene --frames``, so ``batch --references DIR`` pairs them)."""
     from .io import save_image
-    from .scenes import get_scene, render_reference
-    from .scenes.animate import frame_of, frame_seed
+    from .scenes import render_reference
 
-    n = _frames(args.frames)
-    out = _sequence_dir("-o", args.output)
-    scene = get_scene(args.name)
-    w, h = args.size or scene.default_size
-    bar = bar_cls(f"reference {args.name}", unit="frame")
-    t0 = time.perf_counter()
-    try:
-        for k in range(n):
-            img = render_reference(frame_of(scene, k), w, h, args.spp,
-                                   seed=frame_seed(args.seed, k), device=args.device)
-            save_image(str(out / f"{frame_name(args.name, k)}.exr"), img)
-            bar(k + 1, n)
-    finally:
-        bar.close()
+    n, (w, h), dt, out, scene = _render_sequence(
+        args, bar_cls, "reference", lambda sc, w, h, seed: render_reference(
+            sc, w, h, args.spp, seed=seed, device=args.device), save_image, "exr")
     spp = args.spp or scene.reference_spp
-    print(f"{args.name}: {n} reference frames {w}x{h} at {spp} spp in "
-          f"{time.perf_counter() - t0:.1f} s -> {out}/")
+    print(f"{args.name}: {n} reference frames {w}x{h} at {spp} spp in {dt:.1f} s -> {out}/")
     return 0
 
 
