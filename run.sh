@@ -3,13 +3,23 @@
 #   bash run.sh demo [ARGS...]   render a built-in scene at 8 spp, reconstruct it, print time
 #                                and quality, write images to out/
 #   bash run.sh test [ARGS...]   run the test suite (pytest; benchmarks excluded)
-#   bash run.sh setup            set up only
+#   bash run.sh setup [--platforms pocl,intel,oclgrind] [--icd-dir DIR]
+#                                set up only, with the OpenCL platforms named (default: pocl;
+#                                tools/setup_platforms.sh says how each is installed and
+#                                registered; where not in /etc/OpenCL/vendors, the last line
+#                                printed is the `export OCL_ICD_VENDORS=...` that selects them)
 # Set-up: PoCL from Debian when no OpenCL platform is registered, a venv in .venv, the
 # package (editable) with its test and eval extras. Idempotent; a second run is quick.
 set -euo pipefail
 cd "$(dirname "$0")"
 VENV=${CLRECON_VENV:-.venv}
 PY=${PYTHON:-python3}
+
+# platforms first: a bad option fails before anything is installed
+platform_env=
+if [ "${1:-}" = setup ]; then
+  platform_env=$(bash tools/setup_platforms.sh "${@:2}")
+fi
 
 need_root() { if [ "$(id -u)" = 0 ]; then "$@"; elif command -v sudo >/dev/null; then sudo "$@"; else
   echo "run.sh: need root to run: $*" >&2; exit 1; fi; }
@@ -36,7 +46,7 @@ fi
 cmd=${1:-demo}
 shift || true
 case "$cmd" in
-  setup) ;;
+  setup) if [ -n "$platform_env" ]; then echo "$platform_env"; fi ;;
   demo) exec "$VENV/bin/clrecon" demo "$@" ;;
   test) exec "$VENV/bin/python" -m pytest -q "$@" ;;
   *) exec "$VENV/bin/clrecon" "$cmd" "$@" ;;

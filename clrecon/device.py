@@ -5,7 +5,8 @@ The library never prints; everything here either returns data or raises
 
 Choosing a device: ``get_device(spec)`` with ``spec`` an index into :func:`list_devices`, a
 case-insensitive substring of ``"platform / device"``, or ``None`` (then the environment
-variable ``CLRECON_DEVICE``, then the first GPU, then the first device).
+variable ``CLRECON_DEVICE``, then the first GPU, then the first device). Converged
+references come from :func:`trusted_device` (PoCL), never from that choice.
 
 Programs are built from ``kernels/<name>.cl`` with ``-I kernels/`` and ``-D NAME=VALUE``
 options and cached per context, keyed by the source text, the text of every header in
@@ -218,6 +219,30 @@ def get_device(spec: DeviceSpec = None) -> Device:
     return _devices[index]
 
 
+#: the platform converged references come from (:func:`trusted_device`)
+TRUSTED_PLATFORM = "Portable Computing Language"
+
+
+def trusted_device() -> Device:
+    """The device converged references are rendered on: PoCL's CPU device (else another PoCL
+    device), whatever ``CLRECON_DEVICE`` or ``--device`` choose. A reference made on the
+    device under test would carry that device's own faults into the image it is compared
+    with (Intel's CPU compiler once returned garbage from ``raytrace_reference``, and the
+    comparisons agreed with it); PoCL is the platform CI checks against the NumPy tracer.
+    Raises :class:`~clrecon.errors.DeviceError` where no PoCL device is registered."""
+    devices = _all_devices()
+    pocl = [i for i, d in enumerate(devices) if d.platform.name.strip() == TRUSTED_PLATFORM]
+    if not pocl:
+        labels = [f"{d.platform.name.strip()} / {d.name.strip()}" for d in devices]
+        raise DeviceError(
+            f"no trusted device for references: they are rendered on PoCL ('{TRUSTED_PLATFORM}'"
+            f"), which is not among the devices {labels}; install it (`bash run.sh setup`) and, "
+            f"where OCL_ICD_VENDORS is set, put its .icd file in that folder too (or, from "
+            f"Python, give render_reference the device= to render on)")
+    cpus = [i for i in pocl if devices[i].type & cl.device_type.CPU]
+    return get_device((cpus or pocl)[0])
+
+
 def describe(dev: cl.Device) -> DeviceInfo:
     """:class:`DeviceInfo` of any ``cl.Device`` (index -1 if it is not in the list)."""
     for i, d in enumerate(_all_devices()):
@@ -233,8 +258,10 @@ def from_queue(queue: cl.CommandQueue) -> DeviceInfo:
 
 # -- program building ----------------------------------------------------------------------
 
-def build_options(defines: Defines | None = None) -> list[str]:
-    """``-I kernels/`` plus ``-D NAME=VALUE`` for each define, in sorted order."""
+def build_options(defines: Defines | None = None,
+                  devices: list[cl.Device] | None = None) -> list[str]:
+    """``-I kernels/`` plus ``-D NAME=VALUE`` for each define, in sorted order; given the
+    ``devices`` a program is built for, then their :func:`language_options`."""
     opts = [f"-I{kernels_dir()}"]
     for key in sorted(defines or {}):
         val = defines[key]
@@ -243,7 +270,100 @@ def build_options(defines: Defines | None = None) -> list[str]:
         if isinstance(val, float):
             val = f"{val!r}f"
         opts.append(f"-D{key}={val}")
+    if devices:
+        opts += language_options(devices)
     return opts
+
+
+# -- OpenCL C version and native float atomics ---------------------------------------------
+#: CL_DEVICE_SINGLE_FP_ATOMIC_CAPABILITIES_EXT (cl_ext_float_atomics; pyopencl has no name
+#: for it) and its bit CL_DEVICE_GLOBAL_FP_ATOMIC_ADD_EXT
+_FP32_ATOMIC_CAPS, _GLOBAL_FP_ATOMIC_ADD = 0x4231, 1 << 1
+_language: dict[int, tuple[str, ...]] = {}
+
+
+def opencl_c_std(dev: cl.Device) -> str | None:
+    """The ``-cl-std`` value builds for ``dev`` pass: ``"CL3.0"`` or ``"CL2.0"`` where its
+    compiler accepts it, ``None`` for an OpenCL C 1.x compiler.
+
+    Without ``-cl-std`` a compiler builds the highest OpenCL C 1.x it supports (the OpenCL
+    rule; measured: Intel's CPU runtime 1.2, PoCL 3.1 already 3.0), and 1.x has no
+    ``atomic_float``. An OpenCL 3.0 device lists its versions
+    (``CL_DEVICE_OPENCL_C_ALL_VERSIONS``); an older one has only ``CL_DEVICE_OPENCL_C_VERSION``
+    (Oclgrind 21.10, an OpenCL 1.2 device, answers the 3.0 query with a list holding 3.0 and
+    then fails to build with ``-cl-std=CL3.0``: the list is read only on 3.0 devices)."""
+    m = re.match(r"OpenCL (\d+)\.(\d+)", dev.version)
+    versions: set[tuple[int, int]] = set()
+    if m and int(m.group(1)) >= 3:
+        try:
+            for v in dev.get_info(cl.device_info.OPENCL_C_ALL_VERSIONS):
+                versions.add((v.version >> 22, (v.version >> 12) & 0x3FF))
+        except (cl.Error, AttributeError):  # a driver that does not answer: 1.x below
+            pass
+    c = re.match(r"OpenCL C (\d+)\.(\d+)", dev.opencl_c_version)
+    if c:
+        versions.add((int(c.group(1)), int(c.group(2))))
+    if (3, 0) in versions:
+        return "CL3.0"
+    return "CL2.0" if any(v[0] == 2 for v in versions) else None
+
+
+def native_fp32_atomic_add(dev: cl.Device) -> bool:
+    """Whether ``dev`` adds floats atomically in global memory itself (cl_ext_float_atomics
+    with the fp32 global add capability) and its builds are OpenCL C 2.0 or later: then
+    ``atomic_add_f32`` (``kernels/common.h``) uses ``atomic_fetch_add_explicit``, elsewhere a
+    compare-and-swap loop. The capability is queried through the ICD loader (pyopencl has
+    no name for it); where that query is not possible the extension alone decides.
+
+    The kernels learn it from ``-DCLRECON_FP32_ATOMIC_ADD=1``: the feature macro the
+    extension defines for the compiler (``__opencl_c_ext_fp32_global_atomic_add``) is not
+    defined by Intel's CPU compiler (2026.2, OpenCL C 3.0), which does provide the
+    function."""
+    if "cl_ext_float_atomics" not in dev.extensions.split() or opencl_c_std(dev) is None:
+        return False
+    caps = _query_ulong(dev, _FP32_ATOMIC_CAPS)
+    return True if caps is None else bool(caps & _GLOBAL_FP_ATOMIC_ADD)
+
+
+def _query_ulong(dev: cl.Device, param: int) -> int | None:
+    """A ``cl_ulong`` device info through the ICD loader pyopencl uses (``None``: no loader
+    found or the query failed)."""
+    import ctypes
+    import ctypes.util
+
+    here = Path(cl.__file__).parent
+    names = [str(p) for p in sorted((here / ".libs").glob("libOpenCL*"))]
+    names += [n for n in (ctypes.util.find_library("OpenCL"), "libOpenCL.so.1") if n]
+    for name in names:
+        try:
+            fn = ctypes.CDLL(name).clGetDeviceInfo
+        except (OSError, AttributeError):
+            continue
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_uint, ctypes.c_size_t, ctypes.c_void_p,
+                       ctypes.c_void_p]
+        fn.restype = ctypes.c_int
+        val = ctypes.c_uint64(0)
+        ok = fn(ctypes.c_void_p(dev.int_ptr), param, 8, ctypes.byref(val), None) == 0
+        return int(val.value) if ok else None
+    return None
+
+
+def language_options(devices: list[cl.Device]) -> list[str]:
+    """``-cl-std`` (:func:`opencl_c_std`) and ``-DCLRECON_FP32_ATOMIC_ADD=1``
+    (:func:`native_fp32_atomic_add`) for a program built for ``devices``: one program for
+    all of them, so devices that disagree get the compilers' defaults (1.x, CAS loops)."""
+    per = []
+    for dev in devices:
+        if dev.int_ptr not in _language:
+            opts = []
+            std = opencl_c_std(dev)
+            if std:
+                opts.append(f"-cl-std={std}")
+                if native_fp32_atomic_add(dev):
+                    opts.append("-DCLRECON_FP32_ATOMIC_ADD=1")
+            _language[dev.int_ptr] = tuple(opts)
+        per.append(_language[dev.int_ptr])
+    return list(per[0]) if all(p == per[0] for p in per) else []
 
 
 _file_cache: dict[Path, tuple[int, bytes]] = {}
@@ -385,7 +505,7 @@ def build_source(
     is logged at debug level on ``clrecon.device``, part of the
     :class:`~clrecon.errors.KernelBuildError` of a failed build, and echoed to stderr only
     with :data:`ECHO_BUILD_OUTPUT`."""
-    options = build_options(defines)
+    options = build_options(defines, context.devices)
     source_digest = hashlib.sha256(source.encode()).hexdigest()
     headers = _headers_digest()
     key = (context.int_ptr, source_digest, headers, tuple(options))

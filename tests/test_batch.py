@@ -7,12 +7,12 @@ import signal
 
 import numpy as np
 import pytest
-from conftest import assert_close
+from conftest import assert_close, trusted_reference
 
 import clrecon
 from clrecon.batch import batch, make_jobs
 from clrecon.io import load_image, save_image, save_samples
-from clrecon.scenes import get_scene, render_reference, render_samples
+from clrecon.scenes import get_scene, render_samples
 from clrecon.scenes.animate import frame_of, frame_seed
 from clrecon.temporal import compare_sequences, flicker
 
@@ -31,7 +31,7 @@ def sequence(tmp_path_factory, device):
         buf = render_samples(sk, W, H, S, seed=frame_seed(0, k), device=device)
         save_samples(str(d / "in" / f"f{k:03d}.npz"), buf)
         save_image(str(d / "ref" / f"f{k:03d}.exr"),
-                   render_reference(sk, W, H, 64, seed=1, device=device))
+                   trusted_reference(sk, W, H, 64, seed=1))
     return d
 
 

@@ -53,10 +53,10 @@ def foundation_report(scenes=None, size=(512, 512), spps=(4, 8, 16), ref_spp=Non
         step()
         t0 = time.perf_counter()
         rspp = ref_spp or scene.reference_spp
-        ref_a = render_reference(scene, w, h, rspp, seed=1, device=dev)
+        ref_a = render_reference(scene, w, h, rspp, seed=1)  # trusted device
         t_ref = time.perf_counter() - t0
         step()
-        ref_b = render_reference(scene, w, h, rspp, seed=2, device=dev)
+        ref_b = render_reference(scene, w, h, rspp, seed=2)
         step()
         save_image(out / f"{name}_reference.png", ref_a)
         row = {"scene": name, "reference_spp": rspp, "msamples_per_s": w * h * 16 / t / 1e6,

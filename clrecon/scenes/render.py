@@ -1,6 +1,7 @@
 """Render sample buffers and converged references of a :class:`Scene` with
 ``kernels/raytrace.cl``. Long renders run in chunks and report through ``progress(done,
-total)``; the library itself never prints."""
+total)``; the library itself never prints. References are rendered on the trusted device
+(PoCL) unless a device is given."""
 from __future__ import annotations
 
 from typing import Callable, Optional
@@ -8,7 +9,7 @@ from typing import Callable, Optional
 import numpy as np
 import pyopencl as cl
 
-from ..device import Device, DeviceSpec, get_kernel
+from ..device import Device, DeviceSpec, get_kernel, trusted_device
 from ..device import get_device as _get_device
 from ..samples import SampleBuffer
 from .primitives import Scene
@@ -93,10 +94,15 @@ def render_reference(scene: Scene, width: int, height: int, spp: int | None = No
                      seed: int = 1, device: DeviceSpec | Device = None,
                      progress: Progress = None) -> np.ndarray:
     """Converged image: lens, shutter and pixel area integrated with ``spp`` samples per pixel
-    (box pixel filter; default ``scene.reference_spp``), accumulated in float64 on the host."""
+    (box pixel filter; default ``scene.reference_spp``), accumulated in float64 on the host.
+
+    ``device=None`` renders on :func:`~clrecon.device.trusted_device` (PoCL), not on the
+    device ``CLRECON_DEVICE`` chooses: a reference is what a device's output is judged by,
+    so it must not come from the device under test. Pass a device to render on it anyway
+    (a test of that device's tracer)."""
     spp = scene.reference_spp if spp is None else spp
     _check_size(width, height, spp)
-    dev = _get_device(device)
+    dev = trusted_device() if device is None else _get_device(device)
     ctx, q = dev.context, dev.queue
     cam, objs, camera, light, bg = _common_args(scene, width, height, ctx)
     kernel = get_kernel(ctx, "raytrace", "raytrace_reference")

@@ -59,8 +59,7 @@ def main(argv=None):
             sk = frame_of(scene, k)
             print(f"{name}: frame {k + 1}/{a.frames}", file=sys.stderr)
             bufs.append(render_samples(sk, w, h, a.spp, seed=frame_seed(0, k), device=dev))
-            refs.append(render_reference(sk, w, h, a.ref_spp, seed=frame_seed(1, k),
-                                         device=dev))
+            refs.append(render_reference(sk, w, h, a.ref_spp, seed=frame_seed(1, k)))
         rows = [(label, [clrecon.reconstruct(b, m, dev, **kn) for b in bufs])
                 for label, m, kn in SETTINGS]
         if pyoidn is not None:

@@ -54,7 +54,7 @@ def main() -> None:
     for name in args.scenes.split(","):
         scene = get_scene(name)
         buf = render_samples(scene, w, h, args.spp, seed=args.seed, device=dev)
-        ref = tonemap_srgb(render_reference(scene, w, h, device=dev))
+        ref = tonemap_srgb(render_reference(scene, w, h))  # on the trusted device
         reg = regions(buf)
         images = {m: clrecon.reconstruct(buf, m, device=dev) for m in args.methods.split(",")}
         if not args.no_oidn:
