@@ -22,7 +22,7 @@ import pyopencl as cl
 
 from .device import Device, DeviceSpec, event_ms, get_device
 from .errors import DeviceMemoryError
-from .plan import Plan, covering
+from .plan import BOX_PLAN, Plan, covering
 from .samples import FIELDS, FrameInfo, SampleBuffer
 
 
@@ -393,6 +393,7 @@ def register(cls):
 
 
 def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool = False,
+                  safeguard: bool | None = None, estimate_error: bool = False,
                   **knobs) -> Pipeline:
     """Plan ``method`` for frames like ``info`` on ``context``.
 
@@ -400,7 +401,54 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     CoC and motion plans once for them (``dataclasses.replace(info, max_abs_coc=...)``).
     ``grow=True`` re-plans (kernels come from the build cache) when a frame falls outside the
     bounds instead of refusing it. Unknown knobs raise ``TypeError``.
+
+    ``safeguard`` (default: on for every method but ``box`` at 2 spp or more) blends the
+    method's image toward box wherever its estimated bias dominates (:mod:`clrecon.safeguard`);
+    ``safeguard=False`` is the papers' method alone. ``estimate_error=True`` also computes the
+    per-pixel squared-error estimate, the temporary ``"error"`` (needs 2 spp or more).
     """
+    from .knobs import check_bool
+
+    safeguard = check_bool("safeguard", safeguard, none_ok=True)
+    estimate_error = check_bool("estimate_error", estimate_error)
+    inner = _make_one(method, context, info, **knobs)
+    if safeguard is None:
+        safeguard = method != "box" and info.spp >= 2
+    if safeguard and method == "box":
+        raise ValueError("safeguard: box is the unbiased estimate the safeguard blends "
+                         "toward; it has nothing to safeguard")
+    if safeguard and info.spp < 2:
+        raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent halves), "
+                         f"the frame has {info.spp}; pass safeguard=False")
+    if estimate_error and info.spp < 2:
+        raise ValueError(f"estimate_error: needs >= 2 samples per pixel (two independent "
+                         f"halves), the frame has {info.spp}")
+    # a frame without blur is planned as box, with nothing to blend: the method's own
+    # pipeline, unless it may grow into a blurred frame (the wrapper re-plans both)
+    if estimate_error or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
+        from .safeguard import Safeguarded
+
+        pipe = Safeguarded(context, info, method, knobs, blend=bool(safeguard), full=inner)
+    else:
+        pipe = inner
+    pipe.grow, pipe.knobs = bool(grow), dict(knobs)
+    return pipe
+
+
+#: knobs every method takes through :func:`make_pipeline` (beside its class's own)
+PIPELINE_KNOBS = ("safeguard", "estimate_error")
+
+
+def method_knobs(method: str) -> set[str]:
+    """The knob names ``method`` takes (its class's and :data:`PIPELINE_KNOBS`)."""
+    _load_methods()
+    cls = METHODS[method]
+    return (set(inspect.signature(cls.__init__).parameters) - {"self", "context", "info"}
+            | set(PIPELINE_KNOBS))
+
+
+def _make_one(method: str, context: cl.Context, info: FrameInfo, **knobs) -> Pipeline:
+    """One method's own pipeline (no safeguard)."""
     _load_methods()
     try:
         cls = METHODS[method]
@@ -416,7 +464,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
             f"method {method!r} got unknown knobs: {unknown}; it takes {sorted(accepted)}"
         )
     pipe = cls(context, info, **knobs)
-    pipe.grow, pipe.knobs = bool(grow), dict(knobs)
+    pipe.grow, pipe.knobs = False, dict(knobs)
     return pipe
 
 
@@ -442,6 +490,8 @@ class Reconstruction:
     total_ms: float = 0.0
     inspect_ms: float = 0.0
     plan_ms: float = 0.0
+    #: with ``estimate_error=True``: (H, W) float32 estimated squared error of ``image``
+    error: np.ndarray | None = None
 
     @property
     def device_ms(self) -> float:
@@ -478,7 +528,8 @@ def _knob_key(knobs: dict) -> tuple:
 
 
 def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = None,
-        allow_negative: bool = False, **knobs) -> Reconstruction:
+        allow_negative: bool = False, estimate_error: bool = False,
+        **knobs) -> Reconstruction:
     """Upload, validate and inspect on the device, plan, reconstruct and read back.
 
     Frame after frame of one method and device, the device buffers are reused and the plan
@@ -493,7 +544,14 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     ``color_linear = False`` (splat: its composite clamps each layer's colour at 0 against
     the integration's ringing) runs twice on a frame with negative colours, once per part,
     and the image is the difference (``pass_ms`` sums both runs).
+
+    ``estimate_error=True`` also returns ``error``: the (H, W) float32 estimate of the
+    squared error of ``image`` (linear radiance, mean over RGB) from independent halves of
+    the samples (:mod:`clrecon.safeguard`), for every method, box included.
     """
+    from .knobs import check_bool
+
+    estimate_error = check_bool("estimate_error", estimate_error)
     if not isinstance(buf, SampleBuffer):
         raise TypeError(f"buf must be a SampleBuffer, got {type(buf).__name__}")
     buf.check_layout()
@@ -502,7 +560,7 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     # tuning overrides from the environment decide launch configurations too
     tune_env = tuple(sorted((k, v) for k, v in os.environ.items()
                             if k.startswith("CLRECON_TUNE_")))
-    key = (dev.context.int_ptr, method, _knob_key(knobs), tune_env)
+    key = (dev.context.int_ptr, method, _knob_key(knobs), estimate_error, tune_env)
     with _sessions_lock:  # batch runs one thread per device
         sess = _sessions.pop(key, None)
     samples = DeviceSamples.upload(dev.queue, buf, FIELDS,
@@ -513,7 +571,7 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     if sess is not None and sess.pipe.info == info:
         pipe, plan_ms = sess.pipe, 0.0
     else:
-        pipe = make_pipeline(method, dev.context, info, **knobs)
+        pipe = make_pipeline(method, dev.context, info, estimate_error=estimate_error, **knobs)
         plan_ms = (time.perf_counter() - t2) * 1e3
     nbytes = buf.height * buf.width * 12
     out = sess.out if sess is not None and sess.out.size == nbytes else cl.Buffer(
@@ -526,6 +584,7 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     ev = pipe(dev.queue, samples, out)
     image = np.empty((buf.height, buf.width, 3), np.float32)
     cl.enqueue_copy(dev.queue, image, out, wait_for=[ev])
+    error = _read_error(dev.queue, pipe, image.shape[:2]) if estimate_error else None
     pass_ms = pipe.pass_times_ms()
     if split:
         cl.enqueue_copy(dev.queue, samples["color"], np.maximum(-buf.color, 0),
@@ -534,6 +593,8 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
         negative = np.empty_like(image)
         cl.enqueue_copy(dev.queue, negative, out, wait_for=[ev])
         image -= negative
+        if error is not None:  # the parts' errors add (independent estimates)
+            error += _read_error(dev.queue, pipe, image.shape[:2])
         for name, ms in pipe.pass_times_ms().items():
             pass_ms[name] = pass_ms.get(name, 0.0) + ms
     t3 = time.perf_counter()
@@ -550,7 +611,14 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
         total_ms=(t3 - t0) * 1e3,
         inspect_ms=(t2 - t1) * 1e3,
         plan_ms=plan_ms,
+        error=error,
     )
+
+
+def _read_error(queue, pipe: Pipeline, shape) -> np.ndarray:
+    err = np.empty(shape, np.float32)
+    cl.enqueue_copy(queue, err, pipe.buffers["error"])
+    return err
 
 
 def reconstruct(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = None,

@@ -95,7 +95,7 @@ def test_trade_says_what_it_runs_and_how_long(tmp_path, capsys):
     lines = capsys.readouterr().err.splitlines()
     assert lines, "trade printed nothing on stderr"
     first = lines[0]
-    assert "1 scenes x 2 spp" in first and "x 5 settings = 10 measurements" in first, first
+    assert "1 scenes x 2 spp" in first and "x 6 settings = 12 measurements" in first, first
     assert "1 paired round" in first and "1 references to render at 4 spp" in first, first
     assert any("left" in line and "spheres at 2 spp" in line for line in lines), lines
     # a second run finds the reference cached and says so

@@ -17,5 +17,5 @@ VIDS = ["sheared", "mip", "lrdm", "full-stats-tile16"]
 @pytest.mark.parametrize("case", CASES, ids=IDS)
 def test_layered_extremes(device, case, knobs, flat):
     buf = make_frame(case, flat)
-    img = clrecon.reconstruct(buf, "layered", device, **knobs)
+    img = clrecon.reconstruct(buf, "layered", device, **knobs, safeguard=False)
     check_output(img, buf, flat, f"layered {knobs}/{case.name}", convex=True)

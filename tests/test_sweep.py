@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import assert_close
+from conftest import assert_close, trusted_reference
 
 import clrecon
 from clrecon.camera import CocModel
@@ -56,7 +56,7 @@ def test_sorted_sweep_matches_reference(device, rng, knobs):
     assert d.min() < 1 and d.max() > 7, "the frame must exercise every scale"
     hw = ("sort", "tile", "tile_merge", "group")
     want = ref.reconstruct(buf, **{k: v for k, v in knobs.items() if k not in hw})
-    got = clrecon.reconstruct(buf, "sweep", device, **knobs)
+    got = clrecon.reconstruct(buf, "sweep", device, **knobs, safeguard=False)
     assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"sweep {knobs}")
 
 
@@ -68,7 +68,7 @@ def test_sorted_sweep_matches_reference(device, rng, knobs):
                          ids=["2tile", "4pixel", "2block", "4block", "layers"])
 def test_odd_sizes(device, rng, shape, knobs):
     buf = frame(rng, *shape)
-    got = clrecon.reconstruct(buf, "sweep", device, **knobs)
+    got = clrecon.reconstruct(buf, "sweep", device, **knobs, safeguard=False)
     want = ref.reconstruct(buf, **{k: v for k, v in knobs.items() if k != "sort"})
     assert_close(got, want, rtol=2e-4, atol=2e-5, what="sweep")
 
@@ -89,30 +89,34 @@ def test_positions_on_pixel_edges(device, rng, sort, scales):
                                                                buf.position[..., 1]))
     buf.validate()
     want = ref.reconstruct(buf, scales=scales)
-    got = clrecon.reconstruct(buf, "sweep", device, scales=scales, sort=sort)
+    got = clrecon.reconstruct(buf, "sweep", device, scales=scales, sort=sort, safeguard=False)
     assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"edges {sort}")
 
 
 def test_block_sort_is_the_cpu_default_and_falls_back(device, rng):
     import pyopencl as cl
 
-    res = clrecon.run(frame(rng), "sweep", device)
+    res = clrecon.run(frame(rng), "sweep", device, safeguard=False)
     cpu = bool(device.device.type & cl.device_type.CPU)
     assert (res.method["sort"] == "block") == cpu
     if cpu:
         assert set(res.pass_ms) == {"sweep_block"} and res.method["group"] >= 1
-        # the block sort packs the sample index in 8 bits: 256 spp takes the tile sort
-        res = clrecon.run(frame(rng, h=3, w=5, s=256), "sweep", device, scales=2)
-        assert res.method["sort"] == "tile"
+        # the block sort packs the sample index in 8 bits: 256 spp takes the tile sort, or
+        # the pixel sort where local memory holds no tile (Oclgrind's 32 KiB)
+        res = clrecon.run(frame(rng, h=3, w=5, s=256), "sweep", device, scales=2,
+                          safeguard=False)
+        assert res.method["sort"] in ("tile", "pixel")
     with pytest.raises(ValueError, match="spp"):
-        clrecon.reconstruct(frame(rng, h=2, w=2, s=256), "sweep", device, sort="block")
+        clrecon.reconstruct(frame(rng, h=2, w=2, s=256), "sweep", device, sort="block",
+                            safeguard=False)
 
 
 @pytest.mark.parametrize("scale", [1.0, 0.4])
 def test_dof_layers_match_reference(device, rng, scale):
     buf = frame(rng, motion=False)
     want = ref.reconstruct(buf, dof_layers=True, diameter_scale=scale)
-    got = clrecon.reconstruct(buf, "sweep", device, dof_layers=True, diameter_scale=scale)
+    got = clrecon.reconstruct(buf, "sweep", device, dof_layers=True, diameter_scale=scale,
+                              safeguard=False)
     assert_close(got, want, rtol=2e-4, atol=2e-5, what="layers")
 
 
@@ -137,7 +141,8 @@ def test_in_focus_static_frame_is_the_box_filter(device, rng):
     box = buf.color.astype(np.float64).mean(axis=2)
     for knobs in (dict(scales=2), dict(scales=4), dict(dof_layers=True),
                   dict(scales=2, sort="block"), dict(scales=4, sort="tile")):
-        assert_close(clrecon.reconstruct(buf, "sweep", device, **knobs), box, rtol=1e-5,
+        assert_close(clrecon.reconstruct(buf, "sweep", device, **knobs,
+                                         safeguard=False), box, rtol=1e-5,
                      what=f"in focus {knobs}")
 
 
@@ -151,7 +156,7 @@ def test_default_plan_is_the_box_filter_when_only_1x1_can_weigh(device, rng, sca
     buf = frame(rng, motion=False, ties=False)
     coc = buf.coc_model.coc(buf.depth)
     buf.depth[:] = np.where(np.abs(coc) > coc_diameter / 2, 4.0, buf.depth)  # clip to |coc|
-    res = clrecon.run(buf, "sweep", device, scales=scales)
+    res = clrecon.run(buf, "sweep", device, scales=scales, safeguard=False)
     assert (res.method["plan"] == "box") == (plan == "box")
     assert (set(res.pass_ms) == {"box"}) == (plan == "box")
     want = ref.reconstruct(buf, scales=scales)
@@ -162,7 +167,7 @@ def test_flat_field_energy_and_finite(device, rng):
     buf = frame(rng, h=16, w=16, s=8)
     buf.color[:] = 0.7
     for knobs in CASES[:4] + [dict(dof_layers=True)]:
-        img = clrecon.reconstruct(buf, "sweep", device, **knobs)
+        img = clrecon.reconstruct(buf, "sweep", device, **knobs, safeguard=False)
         assert np.isfinite(img).all()
         assert_close(img, np.full_like(img, 0.7), rtol=1e-5, what=f"flat {knobs}")
 
@@ -170,38 +175,37 @@ def test_flat_field_energy_and_finite(device, rng):
 def test_beats_box_on_a_defocused_scene(device):
     """Sanity of the whole method on rendered data (the quality report covers every scene)."""
     from clrecon.metrics import psnr
-    from clrecon.scenes import render_reference
 
     sc = get_scene("spheres")
-    ref_img = render_reference(sc, 96, 96, 256, seed=1, device=device)
+    ref_img = trusted_reference(sc, 96, 96, 256, seed=1)
     buf = render_samples(sc, 96, 96, 4, seed=2, device=device)
     box = psnr(clrecon.reconstruct(buf, "box", device), ref_img)
-    sweep = psnr(clrecon.reconstruct(buf, "sweep", device), ref_img)
+    sweep = psnr(clrecon.reconstruct(buf, "sweep", device, safeguard=False), ref_img)
     assert sweep > box + 1.0
 
 
 def test_knob_errors(device, rng):
     buf = frame(rng)
     with pytest.raises(ValueError, match="scales"):
-        clrecon.reconstruct(buf, "sweep", device, scales=3)
+        clrecon.reconstruct(buf, "sweep", device, scales=3, safeguard=False)
     with pytest.raises(ValueError, match="sort"):
-        clrecon.reconstruct(buf, "sweep", device, sort="bubble")
+        clrecon.reconstruct(buf, "sweep", device, sort="bubble", safeguard=False)
     with pytest.raises(ValueError, match="local memory"):
-        clrecon.reconstruct(buf, "sweep", device, tile=512)
+        clrecon.reconstruct(buf, "sweep", device, tile=512, safeguard=False)
     with pytest.raises(TypeError, match="unknown knobs"):
-        clrecon.reconstruct(buf, "sweep", device, nonsense=1)
+        clrecon.reconstruct(buf, "sweep", device, nonsense=1, safeguard=False)
 
 
 def test_describe_reports_mode_and_knobs(device, rng):
-    res = clrecon.run(frame(rng), "sweep", device, scales=4, sort="pixel")
+    res = clrecon.run(frame(rng), "sweep", device, scales=4, sort="pixel", safeguard=False)
     assert res.method["mode"] == "4-scale" and res.method["sort"] == "pixel"
     assert set(res.pass_ms) == {"sweep_prepare", "sweep_resolve"}
-    res = clrecon.run(frame(rng), "sweep", device, sort="block", group=2)
+    res = clrecon.run(frame(rng), "sweep", device, sort="block", group=2, safeguard=False)
     assert res.method["sort"] == "block" and res.method["group"] == 2
     assert set(res.pass_ms) == {"sweep_block"}
-    res = clrecon.run(frame(rng, motion=False), "sweep", device)
+    res = clrecon.run(frame(rng, motion=False), "sweep", device, safeguard=False)
     assert res.method["smooth_motion"] is False  # no motion in the frame: no motion term
-    res = clrecon.run(frame(rng), "sweep", device, dof_layers=True)
+    res = clrecon.run(frame(rng), "sweep", device, dof_layers=True, safeguard=False)
     assert res.method["mode"] == "dof_layers"
     assert set(res.pass_ms) == {"sweep_layer_sums", "sweep_layer_resolve"}
 
@@ -218,10 +222,10 @@ def test_box_equivalent_specialization(device, rng, knobs, coc):
         buf.depth[:] = buf.coc_model.depth_at_coc(coc)
     buf.lens[:] = 0.0
     buf.validate()
-    res = clrecon.run(buf, "sweep", device, **knobs)
+    res = clrecon.run(buf, "sweep", device, **knobs, safeguard=False)
     narrow = 3.0 if knobs.get("scales") == 4 else 1.0
     expect_box = 2 * coc <= narrow
     assert (res.method["plan"] == "box") is expect_box
     assert (set(res.pass_ms) == {"box"}) is expect_box
-    full = clrecon.reconstruct(buf, "sweep", device, specialize=False, **knobs)
+    full = clrecon.reconstruct(buf, "sweep", device, specialize=False, **knobs, safeguard=False)
     assert_close(res.image, full, rtol=1e-5, atol=1e-6, what="specialized vs full sweep")

@@ -13,7 +13,6 @@ left to right: the crop is centred on the region where the box filter's error is
 """
 from __future__ import annotations
 
-import inspect
 import json
 import math
 import statistics
@@ -27,7 +26,7 @@ import pyopencl as cl
 from ..device import Device, DeviceSpec, get_device
 from ..io import load_image, load_samples, save_image
 from ..metrics import evaluate
-from ..pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline, run
+from ..pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline, method_knobs, run
 from ..scenes import SCENES, get_scene, render_reference, render_samples
 
 Variant = tuple[str, str, dict[str, Any]]
@@ -121,8 +120,7 @@ def _check_variants(variants: Sequence[Variant]) -> list[Variant]:
         if method not in METHODS:
             raise ValueError(f"variant {label!r}: unknown method {method!r}; available: "
                              f"{sorted(METHODS)}")
-        accepted = set(inspect.signature(METHODS[method].__init__).parameters)
-        unknown = sorted(set(knobs) - (accepted - {"self", "context", "info"}))
+        unknown = sorted(set(knobs) - method_knobs(method))
         if unknown:
             raise TypeError(f"variant {label!r}: method {method!r} got unknown knobs {unknown}")
         out.append((label, method, knobs))
@@ -318,7 +316,7 @@ def methods_table(scenes: Sequence[str] | None = None,
         """(name, samples, reference, reference spp) of every scene, then every input."""
         for name, scene in scene_objs.items():
             rspp = ref_spp or scene.reference_spp
-            ref = render_reference(scene, w, h, rspp, seed=1, device=dev)
+            ref = render_reference(scene, w, h, rspp, seed=1)  # on the trusted device
             step()
             buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev)
             buf.validate()

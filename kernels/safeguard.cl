@@ -1,0 +1,164 @@
+/* The per-pixel safeguard: an error estimate for any method's image, from the samples
+ * themselves, and the blend toward the unbiased box estimate that it drives
+ * (clrecon/safeguard.py has the derivation and the NumPy reference).
+ *
+ *   safeguard_split  copy one sample field into its two halves (samples 0..ha-1, ha..S-1 of
+ *                    each pixel): two independent estimates of everything
+ *   safeguard_stats  per pixel: the box image and, in linear radiance, mean over RGB,
+ *                    d2 = |m - box|^2, vb = k |boxA - boxB|^2, vm = k |mA - mB|^2 with
+ *                    k = ha hb / S^2 (the variance of the full-frame estimate from its halves)
+ *   safeguard_blend  windowed means (3x3 and 7x7, over the pixels inside the image), the bias
+ *                    estimate b2 = max(0, mean7(e), mean3(e) - 2 se3(e)), e = d2 - vm - vb
+ *                    (se3: the standard error of the 3x3 mean), the method's
+ *                    error b2 + mean3(vm), vbw = max(mean3(vb), mean7(vb)), the weight
+ *                    w = vbw / (vbw + error), the image and its estimated squared error
+ *                    (box's own: mean3(vb), unbiased)
+ */
+
+__kernel void safeguard_split(__global const float *src, __global float *dst_a,
+                              __global float *dst_b, int pixels, int spp, int ha, int width)
+{
+    const int p = get_global_id(0);
+    if (p >= pixels)
+        return;
+    const int hb = spp - ha;
+    const __global float *s = src + (size_t)p * spp * width;
+    __global float *a = dst_a + (size_t)p * ha * width;
+    __global float *b = dst_b + (size_t)p * hb * width;
+    for (int i = 0; i < ha * width; ++i)
+        a[i] = s[i];
+    for (int i = 0; i < hb * width; ++i)
+        b[i] = s[ha * width + i];
+}
+
+inline float lum2(float3 d) { return (d.x * d.x + d.y * d.y + d.z * d.z) * (1.0f / 3.0f); }
+
+inline float3 load3(__global const float *a, int i) { return vload3(i, a); }
+
+/* has_method = 0: only the box statistics (m, ma, mb are not read).
+ *
+ * Range: colours up to 1e30 are valid, and their squares overflow float32. Each pixel's
+ * statistics are therefore stored in units of 2^(2 e), e the binary exponent of the largest
+ * value the pixel's statistics involve (stats.w = e); the blend rescales a window to its
+ * largest e before adding (a pixel 2^-63 times dimmer than its window's brightest adds
+ * nothing measurable to it). */
+__kernel void safeguard_stats(__global const float *color, __global const float *m,
+                              __global const float *ma, __global const float *mb,
+                              __global float *box, __global float4 *stats,
+                              int width, int height, int spp, int ha, int has_method)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= height)
+        return;
+    const int p = y * width + x;
+    const __global float *c = color + (size_t)p * spp * 3;
+    float3 sa = (float3)(0.0f), sb = (float3)(0.0f);
+    for (int i = 0; i < ha; ++i)
+        sa += vload3(i, c);
+    for (int i = ha; i < spp; ++i)
+        sb += vload3(i, c);
+    const int hb = spp - ha;
+    const float3 full = (sa + sb) / (float)spp;
+    const float3 a = sa / (float)ha, b = sb / (float)hb;
+    float3 vm_ = full, vma = full, vmb = full;
+    if (has_method) {
+        vm_ = load3(m, p);
+        vma = load3(ma, p);
+        vmb = load3(mb, p);
+    }
+    const float3 big = fmax(fmax(fmax(fabs(a), fabs(b)), fmax(fabs(vm_), fabs(vma))),
+                            fabs(vmb));
+    int e;
+    (void)frexp(fmax(fmax(big.x, big.y), big.z), &e);
+    const float sc = ldexp(1.0f, -e);
+    const float k = ((float)ha * (float)hb) / ((float)spp * (float)spp);
+    const float vb = k * lum2((a - b) * sc);
+    float d2 = 0.0f, vm = 0.0f;
+    if (has_method) {
+        d2 = lum2((vm_ - full) * sc);
+        vm = k * lum2((vma - vmb) * sc);
+    }
+    vstore3(full, p, box);
+    stats[p] = (float4)(d2, vb, vm, (float)e);
+}
+
+/* mode 0: box (image = box, error = mean3(vb)); 1: the method alone (image = m, error = its
+ * estimate); 2: the blend. error may be written or not (write_error). */
+__kernel void safeguard_blend(__global const float4 *stats, __global const float *box,
+                              __global const float *m, __global float *out,
+                              __global float *error, int width, int height, int mode,
+                              int write_error)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= height)
+        return;
+    int emax = INT_MIN;
+    for (int dy = -3; dy <= 3; ++dy) {
+        const int yy = y + dy;
+        if (yy < 0 || yy >= height)
+            continue;
+        for (int dx = -3; dx <= 3; ++dx) {
+            const int xx = x + dx;
+            if (xx >= 0 && xx < width)
+                emax = max(emax, (int)stats[yy * width + xx].w);
+        }
+    }
+    float vb3 = 0.0f, vb7 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f;
+    int n3 = 0, n7 = 0;
+    for (int dy = -3; dy <= 3; ++dy) {
+        const int yy = y + dy;
+        if (yy < 0 || yy >= height)
+            continue;
+        for (int dx = -3; dx <= 3; ++dx) {
+            const int xx = x + dx;
+            if (xx < 0 || xx >= width)
+                continue;
+            float4 s = stats[yy * width + xx];
+            /* to the window's units; a pixel far dimmer than the window's brightest -> 0 */
+            const int shift = max(2 * ((int)s.w - emax), -252);
+            s.xyz *= ldexp(1.0f, shift); /* scalar ldexp: Oclgrind's vector form misbehaves */
+            const float e = s.x - s.z - s.y;
+            e7 += e;
+            vb7 += s.y;
+            ++n7;
+            if (dy >= -1 && dy <= 1 && dx >= -1 && dx <= 1) {
+                vb3 += s.y;
+                vm3 += s.z;
+                e3 += e;
+                ee3 += e * e;
+                ++n3;
+            }
+        }
+    }
+    /* box's variance over 3x3, or 7x7 where larger: a pixel whose own samples all missed a
+     * rare contributor (a blurred highlight) has halves that agree and a variance near 0,
+     * while its neighbours' samples show the spread */
+    vb3 /= (float)n3;
+    const float vbw = fmax(vb3, vb7 / (float)n7);
+    vm3 /= (float)n3;
+    /* the 7x7 mean, or the 3x3 one where it stands two standard errors above zero (a bias
+     * along a thin edge, which the wider window dilutes; noise alone rarely gets there) */
+    const float mu3 = e3 / (float)n3;
+    const float se3 = sqrt(fmax(ee3 / (float)n3 - mu3 * mu3, 0.0f) / (float)n3);
+    const float b2 = fmax(0.0f, fmax(e7 / (float)n7, mu3 - 2.0f * se3));
+    const float err_m = b2 + vm3;
+    const int p = y * width + x;
+    const float3 bx = load3(box, p);
+    float3 img;
+    float err;
+    if (mode == 0) {
+        img = bx;
+        err = vb3;
+    } else if (mode == 1) {
+        img = load3(m, p);
+        err = err_m;
+    } else {
+        const float den = vbw + err_m;
+        const float w = den > 0.0f ? vbw / den : 0.0f;
+        img = bx + w * (load3(m, p) - bx);
+        err = w * w * err_m + (1.0f - w) * (1.0f - w) * vbw;
+    }
+    vstore3(img, p, out);
+    if (write_error) /* back to radiance^2; beyond float32 (colours above ~1e19): FLT_MAX */
+        error[p] = fmin(ldexp(err, 2 * emax), FLT_MAX);
+}
