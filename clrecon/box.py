@@ -19,8 +19,8 @@ class Box:
         self.local = check_local("local", local) or LocalSize(16, 4)
         dev = context.devices[0]
         self.local.check(dev, self.name)  # before building for a size that cannot launch
-        defines = {} if self.local.x is None else {"WG_X": self.local.x, "WG_Y": self.local.y}
-        self.kernel = get_kernel(context, "box", "box_average", defines)
+        # the local size is a launch parameter only: every candidate shares one program
+        self.kernel = get_kernel(context, "box", "box_average")
         self.local.check(dev, self.name, self.kernel)
 
     def __call__(self, queue, color: cl.Buffer, out: cl.Buffer, width: int, height: int,

@@ -5,17 +5,10 @@
  *   out    float, (H, W, 3)
  * One work-item per pixel on a 2D range rounded up to the local size; items outside the
  * image return early. Sums in float (S <= a few hundred; relative error ~S * 2^-24).
- * Tunables: WG_X, WG_Y (local size the host launches with; informative here, the kernel
- * has no local memory).
+ * Local size: a launch parameter only (tuned); nothing here depends on it.
  */
 #include "common.h"
 
-#ifndef WG_X
-#define WG_X 16  // local size x
-#endif
-#ifndef WG_Y
-#define WG_Y 4   // local size y
-#endif
 
 __kernel void box_average(__global const float *color, __global float *out,
                           const int width, const int height, const int spp)

@@ -12,18 +12,13 @@
  * mean of its own samples (box filter).
  *   color     float (H, W, S, 3); params float (tiles, MAXP, NPAR);
  *   filtered  float (tiles, MAXP, NCH, FT, FT); out float (H, W, 3)
- * Compile-time: SPP, TILE, MAXP, GMAX. Tunables: WG_X, WG_Y (local size).
+ * Compile-time: SPP, TILE, MAXP, GMAX. The local size is a launch
+ * parameter only (tuned); nothing here depends on it.
  */
 #include "layered.h"
 
 #ifndef SPP
 #define SPP 8
-#endif
-#ifndef WG_X
-#define WG_X 16
-#endif
-#ifndef WG_Y
-#define WG_Y 4
 #endif
 
 /* The mean of a pixel's own samples: where no layer covers it. */

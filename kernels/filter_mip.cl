@@ -4,7 +4,7 @@
  * axis of its footprint. This file reads buffers; kernels/filter_mip_image.cl reads the same
  * pyramid through image objects and the linear sampler (filter_mip.h: what both share).
  *
- * filter_mip_build: one work-group of WG_X items per slot (1D range tiles * MAXP * WG_X);
+ * filter_mip_build: one work-group per slot (1D range tiles * MAXP * n, n items a group);
  *   level l >= 1 of the pyramid (side D_l = ceil(D_{l-1} / 2)) is the mean of 2x2 texels of
  *   level l - 1 (missing texels count as 0); level 0 is the grid itself. Barriers between
  *   levels (the group owns its slot).
@@ -17,12 +17,15 @@
  *   LOD log2(minor footprint), spread over +-sqrt(3 (tsu^2 - tsv^2)) along the major axis so
  *   that the probes' spread adds the missing variance. Level-l texel k is centred at
  *   k 2^l + (2^l - 1) / 2 in grid coordinates. Unnormalised sums (composite divides).
- * Compile-time: TILE, MAXP, GMAX, NLEV (levels incl. 0), PYR_PLANE. Tunables: WG_X, WG_Y.
+ * Compile-time: TILE, MAXP, GMAX, NLEV (levels incl. 0), PYR_PLANE. Local sizes are
+ * launch parameters only (the host's, tuned for filter_mip_sample).
  */
 #include "filter_mip.h"
+#include "vec_hint.h"
 
-__kernel void filter_mip_build(__global const float *params, __global const float *grids,
-                               __global float *pyr)
+__kernel SCALAR_WORK_ITEMS
+void filter_mip_build(__global const float *params, __global const float *grids,
+                      __global float *pyr)
 {
     const int slot = get_group_id(0), lid = get_local_id(0), n = get_local_size(0);
     __global const float *p = params + (size_t)slot * NPAR;
@@ -102,8 +105,9 @@ inline void mip_bilinear(mip_level m, float x, float y, float wt, float *acc)
     }
 }
 
-__kernel void filter_mip_sample(__global const float *params, __global const float *grids,
-                                __global const float *pyr, __global float *filtered)
+__kernel SCALAR_WORK_ITEMS
+void filter_mip_sample(__global const float *params, __global const float *grids,
+                       __global const float *pyr, __global float *filtered)
 {
     const int i = get_global_id(0) - 1, j = get_global_id(1) - 1, slot = get_global_id(2);
     __global const float *p = mip_pixel_params(params, slot, i, j);

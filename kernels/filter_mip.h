@@ -9,17 +9,13 @@
 
 #include "layered.h"
 
+/* defaults: the default layout's DMAX 64 grid (layered.h: TILE 32, GMAX 16; the host sets
+ * both from reference.mip_levels) */
 #ifndef NLEV
 #define NLEV 7
 #endif
-#ifndef WG_X  /* local size of the sample kernels (tunable) */
-#define WG_X 8
-#endif
-#ifndef WG_Y
-#define WG_Y 8
-#endif
 #ifndef PYR_PLANE
-#define PYR_PLANE 1
+#define PYR_PLANE 1365
 #endif
 #define MIP_ALPHA 2.24f
 #define MIP_D 0.33f

@@ -18,9 +18,21 @@
  *   bits of fraction (8 on NVIDIA), so the result matches the buffer variant to about 1e-3
  *   of the texels' range, not to float precision.
  * Compile-time: TILE, MAXP, GMAX, NLEV, PYR_PLANE, ATLAS_RW, ATLAS_RH, ATLAS_PER_ROW.
- * Tunables: WG_X, WG_Y (local size of filter_mip_sample_image).
+ * The local size of filter_mip_sample_image is a launch parameter only (tuned).
  */
 #include "filter_mip.h"
+
+/* defaults: one slot per atlas row of the default DMAX 64 grid (reference.mip_atlas); the
+ * host sets all three from the device's image limits */
+#ifndef ATLAS_RW
+#define ATLAS_RW 118
+#endif
+#ifndef ATLAS_RH
+#define ATLAS_RH 66
+#endif
+#ifndef ATLAS_PER_ROW
+#define ATLAS_PER_ROW 1
+#endif
 
 /* Box of level l within a slot's region (sized for a DMAX grid). */
 inline int2 mip_box(int l)

@@ -10,16 +10,10 @@
  *   grids, tmp  float (tiles, MAXP, NCH, DMAX, DMAX), row stride D
  *   filtered    float (tiles, MAXP, NCH, FT, FT), index (j + 1) * FT + (i + 1)
  * Unnormalised (composite divides channels by each other). Compile-time: TILE, MAXP, GMAX.
- * Tunables: WG_X, WG_Y (local size of both kernels).
+ * The local size of both kernels is a launch parameter only (tuned).
  */
 #include "layered.h"
 
-#ifndef WG_X
-#define WG_X 8
-#endif
-#ifndef WG_Y
-#define WG_Y 8
-#endif
 
 /* Bilinear lookup of all channels at grid coordinate (x, y); outside reads 0. */
 inline void rotated_tap(__global const float *g, int dim, float x, float y, float wk,

@@ -24,17 +24,12 @@
  *   channels by each other.
  *   grids     float (tiles, MAXP, NCH, DMAX, DMAX), row stride D (reproject's layout)
  *   filtered  float (tiles, MAXP, NCH, FT, FT), index (j + 1) * FT + (i + 1)
- * Compile-time: TILE, MAXP, GMAX, RECURSIONS. Tunables: WG_X, WG_Y (local size of
- * filter_sheared_y).
+ * Compile-time: TILE, MAXP, GMAX, RECURSIONS. The local size of filter_sheared_y is a
+ * launch parameter only (tuned).
  */
 #include "layered.h"
+#include "vec_hint.h"
 
-#ifndef WG_X
-#define WG_X 8
-#endif
-#ifndef WG_Y
-#define WG_Y 8
-#endif
 #ifndef RECURSIONS
 #define RECURSIONS 3  /* forward-backward passes (1: the paper's eq. 10) */
 #endif
@@ -108,8 +103,9 @@ __kernel void filter_sheared_x(__global const float *params, __global float *gri
         }                                                                                 \
     } while (0)
 
-__kernel void filter_sheared_y(__global const float *params, __global const float *grids,
-                               __global float *filtered)
+__kernel SCALAR_WORK_ITEMS
+void filter_sheared_y(__global const float *params, __global const float *grids,
+                      __global float *filtered)
 {
     /* four outputs (i0 .. i0 + 3, j) per work-item, as one float4 per channel: along x they
      * are consecutive in the grid for either axis (axis 0: along u, axis 1: along w), so a

@@ -12,16 +12,14 @@
  *   coarsest level).
  * integrate_ring: one work-group; ring[0] = mean of b's outermost ring (float4).
  * src/dst offsets (in float4 pixels) let one buffer hold several layers.
- * Compile-time: PYR (5: F_5, 7: F_7). Tunables: WG_X, WG_Y (2D local size), WG_RING.
+ * Compile-time: PYR (5: F_5, 7: F_7), WG_RING (integrate_ring's work-group size:
+ * a power of two, the host's choice within the device's limits). The 2D kernels' local size
+ * is a launch parameter only (tuned).
  */
+#include "vec_hint.h"
+
 #ifndef PYR
 #define PYR 5
-#endif
-#ifndef WG_X
-#define WG_X 16
-#endif
-#ifndef WG_Y
-#define WG_Y 4
 #endif
 #ifndef WG_RING
 #define WG_RING 256
@@ -68,9 +66,10 @@ __kernel void integrate_down(__global const float4 *src, const int soff, const i
     dst[y * dw + x] = acc;
 }
 
-__kernel void integrate_up(__global const float4 *coarse, const int cw, const int ch,
-                           __global const float4 *fine, const int foff, const int fw,
-                           const int fh, __global float4 *out, const int ooff)
+__kernel SCALAR_WORK_ITEMS
+void integrate_up(__global const float4 *coarse, const int cw, const int ch,
+                  __global const float4 *fine, const int foff, const int fw,
+                  const int fh, __global float4 *out, const int ooff)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= fw || y >= fh)

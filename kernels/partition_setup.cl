@@ -20,13 +20,10 @@
  * or, when S_xx > S_yy, x (P_AXIS 1, beta = S_xy/S_xx); the recursive std is
  * sqrt(det S / S_axis) / s. Reach: min(G s + ceil(|A| + |b| / 2) + 1, REACH_MAX).
  * Compile-time: TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, REACH_MAX (gather reach cap, px).
- * Tunables: WG_X (local size).
+ * The local size is a launch parameter only (tuned).
  */
 #include "layered.h"
 
-#ifndef WG_X
-#define WG_X 8
-#endif
 #ifndef REACH_MAX
 #define REACH_MAX 96
 #endif

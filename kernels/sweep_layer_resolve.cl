@@ -8,18 +8,13 @@
  *           cov_5 += (1 - cov_1) S5
  *   narrow: c += (1 - cov_5) C1 + cov_5 C5;  cov += (1 - cov_5) S1 + cov_5 S5;
  *           cov_1 += (1 - cov_5) S1
- * out (H, W, 3) = c / cov. Compile-time: SPP. Tunables: WG_X, WG_Y.
+ * out (H, W, 3) = c / cov. Compile-time: SPP. Local size: a launch
+ * parameter only (tuned).
  */
 #include "common.h"
 
 #ifndef SPP
 #define SPP 16
-#endif
-#ifndef WG_X
-#define WG_X 16
-#endif
-#ifndef WG_Y
-#define WG_Y 4
 #endif
 
 __kernel void sweep_layer_resolve(__global const float4 *sums, const int width,

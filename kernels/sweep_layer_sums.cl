@@ -7,23 +7,20 @@
  * plane), the far one otherwise. Writes per pixel and layer (near 0, narrow 1, far 2):
  *   sums float4 (H, W, 3): (sum m * r, sum m * g, sum m * b, sum m)
  * No positions are read: a sample lies inside its pixel, where the 1x1 box is 1.
- * Inputs: color (H,W,S,3), depth (H,W,S). Compile-time: SPP. Tunables: WG_X, WG_Y.
+ * Inputs: color (H,W,S,3), depth (H,W,S). Compile-time: SPP.
+ * Local size: a launch parameter only (tuned).
  */
 #include "common.h"
+#include "vec_hint.h"
 
 #ifndef SPP
 #define SPP 16
 #endif
-#ifndef WG_X
-#define WG_X 16
-#endif
-#ifndef WG_Y
-#define WG_Y 4
-#endif
 
-__kernel void sweep_layer_sums(__global const float *color, __global const float *depth,
-                               const int width, const int height, const float c0,
-                               const float c1, const float dscale, __global float4 *sums)
+__kernel SCALAR_WORK_ITEMS
+void sweep_layer_sums(__global const float *color, __global const float *depth,
+                      const int width, const int height, const float c0,
+                      const float c1, const float dscale, __global float4 *sums)
 {
     const int px = get_global_id(0), py = get_global_id(1);
     if (px >= width || py >= height)

@@ -13,21 +13,16 @@
  * Inputs are the SoA sample fields: color (H,W,S,3), position (H,W,S,2), depth (H,W,S),
  * motion (H,W,S,2). coc(w) = c0 / w + c1 (inf depth gives c1).
  * Compile-time: SPP (samples per pixel, <= 256), SMOOTH_MOTION (0/1).
- * Tunables: WG_X, WG_Y (local size).
+ * Local size: a launch parameter only (tuned).
  */
 #include "common.h"
+#include "vec_hint.h"
 
 #ifndef SPP
 #define SPP 16
 #endif
 #ifndef SMOOTH_MOTION
 #define SMOOTH_MOTION 1
-#endif
-#ifndef WG_X
-#define WG_X 16
-#endif
-#ifndef WG_Y
-#define WG_Y 4
 #endif
 
 /* v moved strictly inside pixel p (see the header); the NumPy reference does the same */
@@ -37,10 +32,11 @@ inline float sweep_inside(float v, int p)
     return clamp(v, fmax(lo + 0x1p-12f, nextafter(lo, hi)), fmin(hi - 0x1p-12f, nextafter(hi, lo)));
 }
 
-__kernel void sweep_prepare(__global const float *color, __global const float *position,
-                            __global const float *depth, __global const float *motion,
-                            const int width, const int height, const float c0, const float c1,
-                            const float dscale, __global float4 *keys, __global float4 *colors)
+__kernel SCALAR_WORK_ITEMS
+void sweep_prepare(__global const float *color, __global const float *position,
+                   __global const float *depth, __global const float *motion,
+                   const int width, const int height, const float c0, const float c1,
+                   const float dscale, __global float4 *keys, __global float4 *colors)
 {
     const int px = get_global_id(0), py = get_global_id(1);
     if (px >= width || py >= height)

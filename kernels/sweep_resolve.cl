@@ -14,12 +14,14 @@
  *     tile), and every pixel walks that list, skipping samples outside its window.
  * Compile-time: SPP, SCALES (2 or 4), EXPONENT (the paper's 1.3 variant; 1 = off),
  *   SORT_N (power of two >= (TILE + 2R)^2 * SPP, tile kernel only).
- * Tunables: TILE (tile kernel: local size TILE x TILE), WG_X, WG_Y (pixel kernel),
+ * Tunables: TILE (tile kernel: local size TILE x TILE; the pixel kernel's local size is a
+ *   launch parameter only),
  *   TILE_MERGE (tile kernel): 0 = bitonic sort by all work-items (GPUs), 1 = one work-item
  *   merges the tile's per-pixel sorted runs through a winner tree (CPUs, where the items
  *   of a group run one after another anyway: ~5x fewer operations than the network).
  */
 #include "common.h"
+#include "vec_hint.h"
 
 #ifndef SPP
 #define SPP 16
@@ -35,12 +37,6 @@
 #endif
 #ifndef TILE
 #define TILE 4
-#endif
-#ifndef WG_X
-#define WG_X 16
-#endif
-#ifndef WG_Y
-#define WG_Y 4
 #endif
 
 #if SCALES == 2
@@ -115,8 +111,9 @@ inline void sweep_init(sweep_state *st)
     st->sum = (float3)(0.0f);
 }
 
-__kernel void sweep_resolve_pixel(__global const float4 *keys, __global const float4 *colors,
-                                  const int width, const int height, __global float *out)
+__kernel SCALAR_WORK_ITEMS
+void sweep_resolve_pixel(__global const float4 *keys, __global const float4 *colors,
+                         const int width, const int height, __global float *out)
 {
     const int px = get_global_id(0), py = get_global_id(1);
     if (px >= width || py >= height)
@@ -149,7 +146,7 @@ __kernel void sweep_resolve_pixel(__global const float4 *keys, __global const fl
     vstore3(st.sum / st.cov, pixel_index(px, py, width), out);
 }
 
-__kernel __attribute__((reqd_work_group_size(TILE, TILE, 1)))
+__kernel SCALAR_WORK_ITEMS __attribute__((reqd_work_group_size(TILE, TILE, 1)))
 void sweep_resolve_tile(__global const float4 *keys, __global const float4 *colors,
                         const int width, const int height, __global float *out)
 {

@@ -10,15 +10,13 @@
  * [j n, (j + 1) n) one address j n + r % n, r from a xorshift32 seeded by (seed, tile), is
  * visited; stride 1 visits every sample. Addresses of pixels outside the image are skipped.
  * coc(w) = c0 / w + c1 (misses: c1); buckets as in layered.h.
- * Compile-time: SPP, TILE, NBUCKETS, HAS_MOTION. Tunables: WG_X (local size).
+ * Compile-time: SPP, TILE, NBUCKETS, HAS_MOTION. The local
+ * size is a launch parameter only (tuned).
  */
 #include "layered.h"
 
 #ifndef SPP
 #define SPP 8
-#endif
-#ifndef WG_X
-#define WG_X 8
 #endif
 
 __kernel void tile_stats(__global const float *depth, __global const float *motion,

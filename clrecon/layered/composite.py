@@ -18,7 +18,8 @@ class Composite:
     def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None):
         self.lay = lay
         self.local = local or LocalSize(16, 4)
-        self.kernel = layered_kernel(context, "composite", "composite", lay, self.local)
+        # the local size is a launch parameter only: every configuration shares one program
+        self.kernel = layered_kernel(context, "composite", "composite", lay, None)
 
     def __call__(self, queue, color: cl.Buffer, params: cl.Buffer, filtered: cl.Buffer,
                  width: int, height: int, out: cl.Buffer, wait_for=None) -> cl.Event:

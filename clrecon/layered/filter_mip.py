@@ -33,6 +33,7 @@ class FilterMip:
         self.nlev, self.plane = mip_levels(lay.dmax)
         self.atlas = atlas
         extra = {"NLEV": self.nlev, "PYR_PLANE": self.plane}
+        # the local size is a launch parameter only: every configuration shares one program
         self.kb = layered_kernel(context, "filter_mip", "filter_mip_build", lay, None, **extra)
         if atlas is not None:
             extra |= {"ATLAS_RW": atlas["rw"], "ATLAS_RH": atlas["rh"],
@@ -40,7 +41,7 @@ class FilterMip:
             self.kp = layered_kernel(context, "filter_mip_image", "filter_mip_pack", lay, None,
                                      **extra)
             self.ks = layered_kernel(context, "filter_mip_image", "filter_mip_sample_image",
-                                     lay, self.local, **extra)
+                                     lay, None, **extra)
             # RGBA float: r, g, b, own weight; R float: behind weight
             shape = (atlas["width"], atlas["height"])
             self.images = tuple(
@@ -49,8 +50,8 @@ class FilterMip:
                 for order in (cl.channel_order.RGBA, cl.channel_order.R))
             self._cleared = False
         else:
-            self.ks = layered_kernel(context, "filter_mip", "filter_mip_sample", lay,
-                                     self.local, **extra)
+            self.ks = layered_kernel(context, "filter_mip", "filter_mip_sample", lay, None,
+                                     **extra)
             self.images = None
         self.kernel = self.ks  # the one the local size tunes
         self.events: list = []

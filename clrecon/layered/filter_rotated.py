@@ -17,9 +17,10 @@ class FilterRotated:
     def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None):
         self.lay = lay
         self.local = local or LocalSize(8, 8)
-        self.ku = layered_kernel(context, "filter_rotated", "filter_rotated_u", lay, self.local)
-        self.kv = layered_kernel(context, "filter_rotated", "filter_rotated_v", lay, self.local)
-        self.kernel = self.ky if hasattr(self, "ky") else self.kv  # the one the local size tunes
+        # the local size is a launch parameter only: every configuration shares one program
+        self.ku = layered_kernel(context, "filter_rotated", "filter_rotated_u", lay, None)
+        self.kv = layered_kernel(context, "filter_rotated", "filter_rotated_v", lay, None)
+        self.kernel = self.kv  # the one the tuner queries (both launch with the local size)
         self.events: list = []
 
     def __call__(self, queue, params: cl.Buffer, grids: cl.Buffer, tmp: cl.Buffer,

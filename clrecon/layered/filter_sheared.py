@@ -19,11 +19,10 @@ class FilterSheared:
         self.lay = lay
         self.local = local or LocalSize(8, 8)
         r = {"RECURSIONS": int(recursions)}
-        self.kx = layered_kernel(context, "filter_sheared", "filter_sheared_x", lay, self.local,
-                                 **r)
-        self.ky = layered_kernel(context, "filter_sheared", "filter_sheared_y", lay, self.local,
-                                 **r)
-        self.kernel = self.ky if hasattr(self, "ky") else self.kv  # the one the local size tunes
+        # the local size is a launch parameter only: every configuration shares one program
+        self.kx = layered_kernel(context, "filter_sheared", "filter_sheared_x", lay, None, **r)
+        self.ky = layered_kernel(context, "filter_sheared", "filter_sheared_y", lay, None, **r)
+        self.kernel = self.ky  # the one the local size tunes
         self.events: list = []
 
     def __call__(self, queue, params: cl.Buffer, grids: cl.Buffer, filtered: cl.Buffer,

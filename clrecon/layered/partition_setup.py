@@ -17,8 +17,8 @@ class PartitionSetup:
     def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None):
         self.lay = lay
         self.local = LocalSize(local.x, 1) if local and local.x else (local or LocalSize(8, 1))
-        self.kernel = layered_kernel(context, "partition_setup", "partition_setup", lay,
-                                     self.local)
+        # the local size is a launch parameter only: every configuration shares one program
+        self.kernel = layered_kernel(context, "partition_setup", "partition_setup", lay, None)
 
     def __call__(self, queue, stats: cl.Buffer, ntiles: int, sigma_x: float, threshold: float,
                  params: cl.Buffer, wait_for=None) -> cl.Event:

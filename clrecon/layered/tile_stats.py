@@ -17,8 +17,8 @@ class TileStats:
     def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None):
         self.lay = lay
         self.local = local or LocalSize(8, 1)
-        self.kernel = layered_kernel(context, "tile_stats", "tile_stats", lay,
-                                     LocalSize(self.local.x, 1) if self.local.x else None)
+        # the local size is a launch parameter only: every configuration shares one program
+        self.kernel = layered_kernel(context, "tile_stats", "tile_stats", lay, None)
 
     def __call__(self, queue, samples: DeviceSamples, kabc, stride: int, seed: int,
                  stats: cl.Buffer, wait_for=None) -> cl.Event:

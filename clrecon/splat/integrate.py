@@ -7,9 +7,23 @@ import pyopencl as cl
 
 from ..device import get_kernel
 from ..pipeline import LocalSize
+from ..tune.runtime import check_kernel_fits
 from .reference import PYRAMIDS, pyramid_shapes
 
+#: integrate_ring's work-group size where the device takes it (:func:`ring_group`)
 RING_WG = 256
+
+
+def ring_group(device: cl.Device) -> int:
+    """integrate_ring's work-group size on ``device``: :data:`RING_WG`, or the largest power
+    of two below it (its reduction halves) within the device's max work-group size, its max
+    work-item size in x and its local memory (a float4 per work-item)."""
+    limit = min(RING_WG, int(device.max_work_group_size), int(device.max_work_item_sizes[0]),
+                int(device.local_mem_size) // 16)
+    if limit < 1:
+        raise ValueError(f"integrate: integrate_ring needs 16 bytes of local memory; the "
+                         f"device has {device.local_mem_size} ({device.name.strip()})")
+    return 1 << (limit.bit_length() - 1)
 
 
 class Integrate:
@@ -26,10 +40,15 @@ class Integrate:
             raise ValueError(f"pyramid: expected one of {sorted(PYRAMIDS)}, got {pyramid!r}")
         self.pyramid = pyramid
         self.local = local or LocalSize(16, 4)
-        defines = {"PYR": 5 if pyramid == "f5" else 7, "WG_RING": RING_WG}
+        dev = context.devices[0]
+        self.ring_wg = ring_group(dev)
+        # the 2D kernels' local size is a launch parameter only: one program for every one
+        defines = {"PYR": 5 if pyramid == "f5" else 7, "WG_RING": self.ring_wg}
         self.down = get_kernel(context, "integrate", "integrate_down", defines)
         self.up = get_kernel(context, "integrate", "integrate_up", defines)
         self.ring = get_kernel(context, "integrate", "integrate_ring", defines)
+        check_kernel_fits(self.ring, dev, self.name, self.ring_wg,
+                          f"integrate_ring with {self.ring_wg} work-items")
         self.kernel = self.up  # the 2D kernels share the local size; the tuner queries one
         pad = len(PYRAMIDS[pyramid][0])
         self.shapes = pyramid_shapes(height, width, pad)
@@ -69,7 +88,7 @@ class Integrate:
             ev = [self._launch(queue, self.up, fw, fh, ev)]
             self.events += ev
         self.ring.set_args(out, off, np.int32(w0), np.int32(h0), ring, np.int32(layer))
-        last = cl.enqueue_nd_range_kernel(queue, self.ring, (RING_WG,), (RING_WG,),
+        last = cl.enqueue_nd_range_kernel(queue, self.ring, (self.ring_wg,), (self.ring_wg,),
                                           wait_for=ev)
         self.events.append(last)
         return last

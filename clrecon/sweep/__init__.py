@@ -33,25 +33,53 @@ import numpy as np
 import pyopencl as cl
 
 from ..box import Box, box_plan
+from ..device import describe
 from ..knobs import INT32_MAX, KnobTypeError, check_bool, check_choice, check_float, check_int
 from ..pipeline import Pipeline, register
 from ..plan import Plan, Step, coc_bound, motion_bound, shape_bounds
-from ..tune.runtime import tuned
-from ..tune.specs import DEFAULTS, local_size_of, make_resolve
+from ..tune.runtime import default_config, fit_config, tuned
+from ..tune.specs import DEFAULT_LOCAL, GPU_LOCAL, local_size_of, make_resolve
 from .block import SweepBlock, block_local_bytes
 from .layers import SweepLayerResolve, SweepLayerSums
 from .prepare import SweepPrepare
-from .resolve import TILE_MERGES, tile_local_bytes
+from .resolve import TILE_MERGES, tile_local_bytes, tile_samples_fit
 
 #: the plans of ``sort``: every one, whatever the device (``None`` picks one)
 SORTS = ("block", "tile", "pixel")
 
 
+def fit_tile(dev: cl.Device, scales: int, spp: int, hi: int) -> int:
+    """The largest tile <= ``hi`` the device takes for ``sort="tile"``: ``tile x tile``
+    work-items within its max work-group size, the tile's samples and sort in its local
+    memory (:func:`~clrecon.sweep.resolve.tile_local_bytes`); 0 when none does."""
+    side = min(int(hi), math.isqrt(dev.max_work_group_size))
+    return _largest(lambda t: tile_samples_fit(t, scales, spp)
+                    and tile_local_bytes(t, scales, spp) <= dev.local_mem_size, side)
+
+
+def fit_group(dev: cl.Device, scales: int, spp: int, hi: int) -> int:
+    """The largest group <= ``hi`` of 4x4 blocks the device takes for ``sort="block"``
+    (work-items within its max work-group size, their windows in its local memory:
+    :func:`~clrecon.sweep.block.block_local_bytes`); 0 when none does or spp > 255."""
+    if spp > 255:
+        return 0
+    return _largest(lambda g: block_local_bytes(scales, spp, g) <= dev.local_mem_size,
+                    min(int(hi), dev.max_work_group_size))
+
+
 def default_sort(context, scales: int, spp: int) -> str:
-    """``"block"`` on CPUs (measured fastest there) where it fits, ``"tile"`` elsewhere."""
+    """``"block"`` on CPUs (measured fastest there) where it fits, else ``"tile"`` where
+    a tile fits the device's local memory, else ``"pixel"`` (no local memory)."""
     dev = context.devices[0]
-    fits = spp <= 255 and block_local_bytes(scales, spp) <= dev.local_mem_size
-    return "block" if dev.type & cl.device_type.CPU and fits else "tile"
+    if dev.type & cl.device_type.CPU and fit_group(dev, scales, spp, 1):
+        return "block"
+    return "tile" if fit_tile(dev, scales, spp, dev.max_work_group_size) else "pixel"
+
+
+def pixel_config(dev: cl.Device) -> dict:
+    """``sort="pixel"`` with the per-pixel passes' default local size for the device."""
+    local = GPU_LOCAL if dev.type & cl.device_type.GPU else DEFAULT_LOCAL
+    return {"sort": "pixel"} | fit_config(local, dev.max_work_group_size)
 
 
 #: largest ``diameter_scale``: the scaled diameters stay far inside the float32 range
@@ -123,9 +151,7 @@ def check_knobs(context, info, scales, dof_layers, exponent, smooth_motion, diam
     if group is not None and plan != "block":
         group = check_int("group", group, 1, INT32_MAX, what=f"(unused by sort={plan!r})")
     if tile is not None and plan == "tile":
-        side = math.isqrt(dev.max_work_group_size)  # a tile x tile work-group
-        hi = _largest(lambda t: tile_local_bytes(t, scales, info.spp) <= dev.local_mem_size,
-                      side)
+        hi = fit_tile(dev, scales, info.spp, dev.max_work_group_size)
         why = (f"for sort='tile' with {scales} scales at {info.spp} spp on this device "
                f"(local memory {dev.local_mem_size} bytes, max work-group size "
                f"{dev.max_work_group_size})")
@@ -134,8 +160,7 @@ def check_knobs(context, info, scales, dof_layers, exponent, smooth_motion, diam
             raise ValueError(f"tile: no tile fits {why}; use sort='pixel'")
         tile = check_int("tile", tile, 1, hi, what=why)
     if group is not None and plan == "block":
-        hi = _largest(lambda g: block_local_bytes(scales, info.spp, g) <= dev.local_mem_size,
-                      dev.max_work_group_size) if info.spp <= 255 else 0
+        hi = fit_group(dev, scales, info.spp, dev.max_work_group_size)
         why = (f"for sort='block' with {scales} scales at {info.spp} spp on this device "
                f"(4x4 blocks per work-group; local memory {dev.local_mem_size} bytes, max "
                f"work-group size {dev.max_work_group_size})")
@@ -168,6 +193,7 @@ class SweepPipeline(Pipeline):
         self.diameter_scale = float(diameter_scale)
         spp = info.spp
         npix = info.width * info.height
+        dev = context.devices[0]
         self.tuning: dict[str, str] = {}
         self.block = self.box = None
 
@@ -224,7 +250,11 @@ class SweepPipeline(Pipeline):
                 == "block":
             if group is None:
                 found = tuned(context, "sweep_block", info)
-                group = (found.config or DEFAULTS["sweep_block"])["group"]
+                want = (found.config or default_config("sweep_block", describe(dev)))["group"]
+                # a group tuned at fewer spp may not fit this frame's windows: the largest
+                # that does (none: SweepBlock names what one block needs and the limit)
+                group = want if found.source == "env" else \
+                    fit_group(dev, self.scales, spp, want) or 1
                 self.tuning["sweep_block"] = found.source
             else:
                 self.tuning["sweep_block"] = "api"
@@ -240,14 +270,23 @@ class SweepPipeline(Pipeline):
             return
         self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
         if given:  # the caller's knobs win over tuning; the rest from the pass default
-            config = {"sort": "tile", "tile": 4, "tile_merge": "auto"} | given
+            config = default_config("sweep_resolve", describe(dev)) | given
             if config["sort"] == "pixel":
-                config = {"sort": "pixel", "wg_x": 16, "wg_y": 4}
+                config = pixel_config(dev)
             self.tuning["sweep_resolve"] = "api"
         else:
             found = tuned(context, "sweep_resolve", info)
-            config = found.config or DEFAULTS["sweep_resolve"]
+            config = found.config or default_config("sweep_resolve", describe(dev))
             self.tuning["sweep_resolve"] = found.source
+        if config["sort"] == "tile" and "tile" not in given and \
+                self.tuning["sweep_resolve"] != "env":
+            # a tile tuned (or defaulted) at fewer spp may not fit this frame's samples in
+            # local memory: the largest that does, else the pixel sort (none needed)
+            fitted = fit_tile(dev, self.scales, spp, int(config["tile"]))
+            if fitted:
+                config = config | {"tile": fitted}
+            elif "sort" not in given and "tile_merge" not in given:
+                config = pixel_config(dev)
         self.resolve = make_resolve(context, spp, self.scales, exponent, config)
 
         def prepare(queue, f, wait):

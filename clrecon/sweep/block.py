@@ -6,6 +6,7 @@ import pyopencl as cl
 
 from ..device import get_kernel
 from ..pipeline import DeviceSamples
+from ..tune.runtime import check_kernel_fits
 
 BLOCK = 4  # block side: the 16 pixels of a work-item (float16 lanes)
 
@@ -57,6 +58,8 @@ class SweepBlock:
         self.kernel = get_kernel(context, "sweep_block", "sweep_block", {
             "SPP": spp, "SCALES": scales, "SMOOTH_MOTION": smooth_motion,
             "EXPONENT": float(exponent), "EXPONENT_ON": exponent != 1.0, "GROUP": self.group})
+        check_kernel_fits(self.kernel, dev, self.name, self.group,
+                          f"group {self.group} at {spp} spp")
 
     def __call__(self, queue, samples: DeviceSamples, diameter_scale: float, out: cl.Buffer,
                  wait_for=None) -> cl.Event:

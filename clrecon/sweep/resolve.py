@@ -6,9 +6,15 @@ import pyopencl as cl
 
 from ..device import get_kernel
 from ..pipeline import LocalSize
+from ..tune.runtime import check_kernel_fits
 
 SORTS = ("tile", "pixel")
 TILE_MERGES = ("auto", "serial", "bitonic")
+#: the tile kernel indexes its samples with 16 bits (``ushort lidx``)
+MAX_TILE_SAMPLES = 1 << 16
+#: the serial merge's winner tree has at most this many leaves (``LEAVES``): one per pixel
+#: of the tile's window
+MAX_MERGE_RUNS = 1024
 
 
 def tile_sort_size(tile: int, scales: int, spp: int) -> int:
@@ -19,8 +25,15 @@ def tile_sort_size(tile: int, scales: int, spp: int) -> int:
 
 
 def tile_local_bytes(tile: int, scales: int, spp: int) -> int:
+    """Local memory of the tile kernel: a float4 key per window sample, a float depth and
+    a ushort index per sort entry."""
     r = 2 if scales == 2 else 3
     return (tile + 2 * r) ** 2 * spp * 16 + tile_sort_size(tile, scales, spp) * 6
+
+
+def tile_samples_fit(tile: int, scales: int, spp: int) -> bool:
+    """Whether the tile's sort entries fit the kernel's 16-bit sample indices."""
+    return tile_sort_size(tile, scales, spp) <= MAX_TILE_SAMPLES
 
 
 class SweepResolve:
@@ -50,15 +63,27 @@ class SweepResolve:
                 raise ValueError(
                     f"tile: {self.tile} needs {need} bytes of local memory for {spp} spp "
                     f"(device has {dev.local_mem_size}); use a smaller tile or sort='pixel'")
+            if not tile_samples_fit(self.tile, scales, spp):
+                raise ValueError(
+                    f"tile: {self.tile} sorts {tile_sort_size(self.tile, scales, spp)} entries "
+                    f"at {spp} spp; the tile kernel indexes at most {MAX_TILE_SAMPLES}: use a "
+                    f"smaller tile or sort='pixel'")
             if tile_merge not in TILE_MERGES:
                 raise ValueError(f"tile_merge: must be one of {TILE_MERGES}, got {tile_merge!r}")
             if tile_merge == "auto":  # serial merge where a group runs on one core anyway
                 tile_merge = "serial" if dev.type & cl.device_type.CPU else "bitonic"
+            runs = (self.tile + 2 * (2 if scales == 2 else 3)) ** 2
+            if tile_merge == "serial" and runs > MAX_MERGE_RUNS:
+                raise ValueError(
+                    f"tile: {self.tile} has a window of {runs} pixels; the serial merge takes "
+                    f"at most {MAX_MERGE_RUNS}: use a smaller tile or tile_merge='bitonic'")
             self.tile_merge = tile_merge
             defines.update(TILE=self.tile, SORT_N=tile_sort_size(self.tile, scales, spp),
                            TILE_MERGE=tile_merge == "serial")
             self.local = LocalSize(self.tile, self.tile)
             self.kernel = get_kernel(context, "sweep_resolve", "sweep_resolve_tile", defines)
+            check_kernel_fits(self.kernel, dev, self.name, self.tile ** 2,
+                              f"tile {self.tile} ({tile_merge} merge) at {spp} spp")
         else:
             self.local = local or LocalSize(16, 4)
             self.kernel = get_kernel(context, "sweep_resolve", "sweep_resolve_pixel", defines)

@@ -1,22 +1,87 @@
 """Run-time side of tuning: which configuration a pass uses on this device for this frame.
 
 ``tuned(context, pass_name, info)`` walks the fallback chain of :func:`clrecon.tune.db.lookup`
-(env override, exact device with the same kernel hash, same vendor and type, the global
-default of the pass's spec, runtime chooses) once per device, pass, bucket and kernel hash
-per process.
+(env override, exact device with the same kernel hash, same vendor and type, the default of
+the pass's spec for the device's type, runtime chooses) once per device, pass, bucket and
+kernel hash per process. The spec's defaults are shaped for CPUs (one to eight work-items
+a group in places); a GPU gets the spec's GPU default instead (:func:`default_config`).
+Whatever the chain finds, except an environment override (the caller's explicit choice,
+refused by the pass if the device cannot launch it), is fitted to the device's maximum
+work-group size (:func:`fit_config`): an entry of another device of the same vendor may
+have tuned a larger group than this one takes. Local memory depends on knobs the lookup
+does not see (spp, scales): the passes that use it fit their configuration themselves and
+check the built kernel with :func:`check_kernel_fits`.
 """
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import pyopencl as cl
 
 from ..device import describe, source_hash
 from ..samples import FrameInfo
 from .db import Lookup, bucket_for, lookup
-from .specs import DEFAULTS, SPECS
+from .specs import DEFAULTS, GPU_DEFAULTS, SPECS
+
+if TYPE_CHECKING:
+    from ..device import DeviceInfo
 
 _cache: dict[tuple, Lookup] = {}
+
+
+def _halve_to(n: int, limit: int) -> int:
+    while n > limit and n > 1:
+        n //= 2
+    return n
+
+
+def fit_config(config: dict | None, max_work_group_size: int) -> dict | None:
+    """``config`` with its work-group size brought within ``max_work_group_size``.
+
+    ``wg_x * wg_y`` (``wg_y`` halved first, keeping rows of ``wg_x`` items), ``wg``,
+    ``group`` (halved) and ``tile`` (``tile ** 2`` items; halved) shrink until they fit; the
+    other keys are kept. ``None`` (runtime chooses) stays ``None``."""
+    if config is None:
+        return None
+    cfg = dict(config)
+    limit = max(int(max_work_group_size), 1)
+    if "wg_x" in cfg and "wg_y" in cfg:
+        x, y = int(cfg["wg_x"]), int(cfg["wg_y"])
+        while x * y > limit and y > 1:
+            y //= 2
+        while x * y > limit and x > 1:
+            x //= 2
+        cfg["wg_x"], cfg["wg_y"] = x, y
+    for key in ("wg", "group"):
+        if key in cfg:
+            cfg[key] = _halve_to(int(cfg[key]), limit)
+    if "tile" in cfg:
+        t = int(cfg["tile"])
+        while t * t > limit and t > 1:
+            t //= 2
+        cfg["tile"] = t
+    return cfg
+
+
+def default_config(pass_name: str, info: DeviceInfo) -> dict | None:
+    """The configuration ``pass_name`` gets on the device ``info`` describes when no tuning
+    entry applies: the spec's GPU default on a GPU, its default elsewhere, fitted to the
+    device's maximum work-group size (:func:`fit_config`)."""
+    table = GPU_DEFAULTS if info.device_type == "GPU" else DEFAULTS
+    return fit_config(table[pass_name], info.max_work_group_size)
+
+
+def resolve(info: DeviceInfo, pass_name: str, bucket: str, digest: str,
+            root=None) -> Lookup:
+    """The fallback chain for a described device (no OpenCL: :func:`tuned` is this plus the
+    device query and a cache). The default level is :func:`default_config`; every level
+    but the environment override is fitted to the device (:func:`fit_config`)."""
+    found = lookup(info, pass_name, bucket, digest,
+                   {pass_name: default_config(pass_name, info)}, root)
+    if found.source == "env":
+        return found
+    return Lookup(fit_config(found.config, info.max_work_group_size), found.source, found.path)
 
 
 def tuned(context: cl.Context, pass_name: str, info: FrameInfo) -> Lookup:
@@ -28,8 +93,29 @@ def tuned(context: cl.Context, pass_name: str, info: FrameInfo) -> Lookup:
     env = os.environ.get(f"CLRECON_TUNE_{pass_name.upper()}")
     key = (dev.int_ptr, pass_name, bucket, digest, env)
     if key not in _cache:
-        _cache[key] = lookup(describe(dev), pass_name, bucket, digest, DEFAULTS)
+        _cache[key] = resolve(describe(dev), pass_name, bucket, digest)
     return _cache[key]
+
+
+def check_kernel_fits(kernel: cl.Kernel, device: cl.Device, pass_name: str, items: int,
+                      config: str) -> None:
+    """Refuse, with a ``ValueError`` naming the need and the limit, a built kernel the device
+    cannot launch with ``items`` work-items a group: the local memory the compiler allotted
+    it (``CL_KERNEL_LOCAL_MEM_SIZE``, its own arrays) beyond the device's, or more items than
+    the kernel's own work-group limit (which private memory lowers below the device's on
+    Intel's CPU runtime). ``config`` says what was asked for. The passes size their local
+    arrays on the host first; this is the compiler's word on the same question."""
+    info = cl.kernel_work_group_info
+    dev = device.name.strip()
+    need = int(kernel.get_work_group_info(info.LOCAL_MEM_SIZE, device))
+    have = int(device.local_mem_size)
+    if need > have:
+        raise ValueError(f"{pass_name}: {config} needs {need} bytes of local memory; the "
+                         f"device has {have} ({dev})")
+    limit = int(kernel.get_work_group_info(info.WORK_GROUP_SIZE, device))
+    if items > limit:
+        raise ValueError(f"{pass_name}: {config} launches {items} work-items a group; the "
+                         f"built kernel takes at most {limit} ({dev})")
 
 
 def clear_cache() -> None:

@@ -95,7 +95,12 @@ def pass_time_ms(handle, last: cl.Event) -> float:
 
 @dataclass(frozen=True)
 class PassSpec:
-    """How to tune one pass."""
+    """How to tune one pass.
+
+    ``default`` is what the tuner measures first and what a CPU (or any device but a GPU)
+    gets without a tuning entry; ``gpu`` is what a GPU gets instead (``None``: ``default``
+    suits GPUs too). :func:`clrecon.tune.runtime.default_config` fits either to the device.
+    """
 
     name: str
     kernel_file: str
@@ -104,6 +109,7 @@ class PassSpec:
     runner: Callable[[Device, int, int, int], PassRunner]
     rtol: float = 1e-5
     atol: float = 1e-6
+    gpu: dict | None = None
 
 
 def _wg(config):
@@ -239,7 +245,8 @@ def _layered_inputs(dev, w, h, spp, **knobs):
     from ..pipeline import make_pipeline
 
     buf = synthetic_frame(w, h, spp)
-    pipe = make_pipeline("layered", dev.context, buf.inspect(), **knobs)
+    # the method's own passes: the safeguard's blend around them is not what is tuned
+    pipe = make_pipeline("layered", dev.context, buf.inspect(), safeguard=False, **knobs)
     s = DeviceSamples.upload(dev.queue, buf, pipe.fields)
     out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * 12)
     pipe(dev.queue, s, out).wait()
@@ -339,31 +346,44 @@ LAYERED_1D = {"wg_x": 8, "wg_y": 1}
 
 DEFAULT_LOCAL = {"wg_x": 16, "wg_y": 4}
 
+# GPU defaults (no tuning entry on a GPU): whole warps/wavefronts (multiples of 32 items,
+# 64-256 per group) where the CPU defaults run one to eight items a group; rows of 32
+# pixels for the per-pixel passes (coalesced loads), 64 items for one group (or item) per
+# tile. The layered filters keep 8x8: their ranges are grids of 34-64 pixels a side, which
+# 32-wide rows would pad to 64.
+GPU_LOCAL = {"wg_x": 32, "wg_y": 4}
+GPU_1D = {"wg_x": 64, "wg_y": 1}
+
 SPECS: dict[str, PassSpec] = {s.name: s for s in (
     # the scene generator's kernel: the same search, default the 8x8 it was written for
     PassSpec("raytrace", "raytrace", {"wg_x": 8, "wg_y": 8}, local_candidates, _raytrace_runner),
-    PassSpec("box", "box", DEFAULT_LOCAL, local_candidates, _box_runner),
-    PassSpec("sweep_prepare", "sweep_prepare", DEFAULT_LOCAL, local_candidates, _prepare_runner),
+    PassSpec("box", "box", DEFAULT_LOCAL, local_candidates, _box_runner, gpu=GPU_LOCAL),
+    PassSpec("sweep_prepare", "sweep_prepare", DEFAULT_LOCAL, local_candidates, _prepare_runner,
+             gpu=GPU_LOCAL),
     # float sums in a different order per configuration: relative tolerance
-    # "auto": the serial merge on CPUs, the bitonic network on GPUs
+    # "auto": the serial merge on CPUs, the bitonic network on GPUs; the sweep fits the
+    # tile to the device's local memory (an 8x8 tile holds 12x12 pixels' samples)
     PassSpec("sweep_resolve", "sweep_resolve", {"sort": "tile", "tile": 4,
                                                 "tile_merge": "auto"},
-             resolve_candidates, _resolve_runner, rtol=1e-4, atol=1e-5),
-    # the whole sorted sweep per 4x4 block (sort="block"): work-items per group
+             resolve_candidates, _resolve_runner, rtol=1e-4, atol=1e-5,
+             gpu={"sort": "tile", "tile": 8, "tile_merge": "auto"}),
+    # the whole sorted sweep per 4x4 block (sort="block"): work-items per group; the sweep
+    # fits the group to the device's local memory
     PassSpec("sweep_block", "sweep_block", {"group": 1},
              lambda: [{"group": g} for g in (1, 2, 4, 8, 16)], _block_runner,
-             rtol=1e-4, atol=1e-5),
+             rtol=1e-4, atol=1e-5, gpu={"group": 64}),
     PassSpec("sweep_layer_sums", "sweep_layer_sums", DEFAULT_LOCAL, local_candidates,
-             _layer_sums_runner),
+             _layer_sums_runner, gpu=GPU_LOCAL),
     PassSpec("sweep_layer_resolve", "sweep_layer_resolve", DEFAULT_LOCAL, local_candidates,
-             _layer_resolve_runner),
+             _layer_resolve_runner, gpu=GPU_LOCAL),
     # method layered; float sums in a different order (atomics): relative tolerance
     PassSpec("tile_stats", "tile_stats", LAYERED_1D, layered_1d_candidates, _tile_stats_runner,
-             rtol=1e-4, atol=1e-4),
+             rtol=1e-4, atol=1e-4, gpu=GPU_1D),
     PassSpec("partition_setup", "partition_setup", LAYERED_1D, layered_1d_candidates,
-             _partition_setup_runner),
+             _partition_setup_runner, gpu=GPU_1D),
+    # one item per (tile, slot) owns its grid on a CPU; a GPU's 64 scatter with atomics
     PassSpec("reproject", "reproject", {"wg_x": 1, "wg_y": 1}, layered_1d_candidates,
-             _reproject_runner, rtol=1e-4, atol=1e-4),
+             _reproject_runner, rtol=1e-4, atol=1e-4, gpu=GPU_1D),
     PassSpec("filter_sheared", "filter_sheared", {"wg_x": 8, "wg_y": 8}, local_candidates,
              _filter_sheared_runner, rtol=1e-4, atol=1e-5),
     PassSpec("filter_rotated", "filter_rotated", {"wg_x": 8, "wg_y": 8}, local_candidates,
@@ -371,7 +391,7 @@ SPECS: dict[str, PassSpec] = {s.name: s for s in (
     PassSpec("filter_mip", "filter_mip", {"wg_x": 8, "wg_y": 8}, local_candidates,
              _filter_mip_runner, rtol=1e-4, atol=1e-5),
     PassSpec("composite", "composite", DEFAULT_LOCAL, local_candidates, _composite_runner,
-             rtol=1e-5, atol=1e-6),
+             rtol=1e-5, atol=1e-6, gpu=GPU_LOCAL),
 )}
 
 
@@ -386,7 +406,8 @@ def _splat_frame_pipeline(dev, w, h, spp):
 
     buf = synthetic_frame(w, h, spp)
     s = DeviceSamples.upload(dev.queue, buf)
-    return make_pipeline("splat", dev.context, buf.inspect(), psf="combined", layers=2), s
+    return make_pipeline("splat", dev.context, buf.inspect(), psf="combined", layers=2,
+                         safeguard=False), s
 
 
 def _splat_runner(dev, w, h, spp):
@@ -437,10 +458,14 @@ SPECS.update({s.name: s for s in (
     PassSpec("splat", "splat", {"wg": 64}, splat_candidates, _splat_runner, rtol=1e-3,
              atol=1e-6),
     PassSpec("integrate", "integrate", DEFAULT_LOCAL, local_candidates, _integrate_runner,
-             rtol=1e-4, atol=1e-6),
+             rtol=1e-4, atol=1e-6, gpu=GPU_LOCAL),
     PassSpec("splat_composite", "splat_composite", DEFAULT_LOCAL, local_candidates,
-             _splat_composite_runner),
+             _splat_composite_runner, gpu=GPU_LOCAL),
 )})
 
-#: the configuration every pass uses when no tuning entry applies (lookup level "default")
+#: the configuration every pass uses on a CPU when no tuning entry applies (lookup level
+#: "default"); a GPU gets :data:`GPU_DEFAULTS`, both fitted by
+#: :func:`clrecon.tune.runtime.default_config`
 DEFAULTS: dict[str, dict | None] = {name: spec.default for name, spec in SPECS.items()}
+GPU_DEFAULTS: dict[str, dict | None] = {
+    name: spec.default if spec.gpu is None else spec.gpu for name, spec in SPECS.items()}
