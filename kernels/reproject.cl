@@ -15,7 +15,16 @@
  *           partition_setup; grids float (tiles, MAXP, NCH, DMAX, DMAX), row stride D.
  * With WG_X > 1 work-items scatter with atomic_add_f32 (common.h); with WG_X == 1 the one
  * work-item owns the grid and adds plainly (no atomics, deterministic order).
- * Compile-time: SPP, TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, SPLAT_BILINEAR, SUBSAMPLE.
+ * FIXED == 1 (deterministic=True with WG_X > 1): the group accumulates into its slot of
+ * `fixed` (int64, the layout of grids) in scaled fixed point (common.h): 2^e per channel,
+ * e = fixed_exponent(klog2, m), 2^klog2 >= the number of samples the slot can read
+ * ((bx - ax) (by - ay) SPP: each adds at most m = max |colour| (bound, from
+ * reproject_color_bound) to a colour channel and at most 1 to a weight channel), then
+ * writes the sums as floats into grids. Integer sums do not depend on the order of the
+ * adds: bit-identical run to run. The atomics are the group's own (one group per slot), so
+ * a barrier orders accumulation and conversion.
+ * Compile-time: SPP, TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, SPLAT_BILINEAR, SUBSAMPLE,
+ * FIXED.
  * Tunables: WG_X (work-group size, the host launches with it).
  */
 #include "common.h"
@@ -33,6 +42,12 @@
 #ifndef SUBSAMPLE
 #define SUBSAMPLE 8   /* b_max: largest block side read as one pixel (1: every pixel) */
 #endif
+#ifndef FIXED
+#define FIXED 0
+#endif
+#if FIXED && !CLRECON_HAS_FIXED
+#error "FIXED needs cl_khr_int64_base_atomics"
+#endif
 
 /* Hash of block row cy for blocks of side sub: it picks the row and column offset of the
  * pixel read from every block of that row. */
@@ -45,25 +60,33 @@ inline uint row_hash(int cy, int sub)
     return h;
 }
 
-#if WG_X > 1
-#define GRID_ADD(p, v) atomic_add_f32((volatile __global float *)(p), (v))
+/* GRID_ADD(p, v, s): add v at p of the accumulation grid (s: FIXED's scale of p's channel) */
+#if FIXED
+#define ACC long
+#define GRID_ADD(p, v, s) atomic_add_fixed_scaled((volatile __global long *)(p), (v), (s))
+#elif WG_X > 1
+#define ACC float
+#define GRID_ADD(p, v, s) atomic_add_f32((volatile __global float *)(p), (v))
 #else
-#define GRID_ADD(p, v) (*(p) += (v))
+#define ACC float
+#define GRID_ADD(p, v, s) (*(p) += (v))
 #endif
 
-inline void splat(__global float *grid, int dim, int gx, int gy, float wt, float3 c, int own)
+/* sc: FIXED's scales of (r, g, b, weights) (unused otherwise) */
+inline void splat(__global ACC *grid, int dim, int gx, int gy, float wt, float3 c, int own,
+                  float4 sc)
 {
     if (gx < 0 || gy < 0 || gx >= dim || gy >= dim || wt == 0.0f)
         return;
-    __global float *p = grid + gy * dim + gx;
+    __global ACC *p = grid + gy * dim + gx;
     const int plane = DMAX * DMAX;
     if (own) {
-        GRID_ADD(p, wt * c.x);
-        GRID_ADD(p + plane, wt * c.y);
-        GRID_ADD(p + 2 * plane, wt * c.z);
-        GRID_ADD(p + 3 * plane, wt);
+        GRID_ADD(p, wt * c.x, sc.x);
+        GRID_ADD(p + plane, wt * c.y, sc.y);
+        GRID_ADD(p + 2 * plane, wt * c.z, sc.z);
+        GRID_ADD(p + 3 * plane, wt, sc.w);
     } else {
-        GRID_ADD(p + 4 * plane, wt);
+        GRID_ADD(p + 4 * plane, wt, sc.w);
     }
 }
 
@@ -147,7 +170,11 @@ void reproject(__global const float *color, __global const float *position,
                __global const float *depth, __global const float *lens,
                __global const float *time, const int width, const int height,
                const int ntx, const float ka, const float kb, const float kc,
-               __global const float *params, __global float *grids)
+               __global const float *params, __global float *grids
+#if FIXED
+               , __global long *fixed, __global const uint *bound
+#endif
+               )
 {
     const int slot = get_group_id(0), lid = get_local_id(0);
     const int t = slot / MAXP;
@@ -155,17 +182,27 @@ void reproject(__global const float *color, __global const float *position,
     const int dim = (int)p[P_DIM];
     if (dim == 0)
         return;
-    __global float *grid = grids + (size_t)slot * NCH * DMAX * DMAX;
-    for (int c = 0; c < NCH; ++c)
-        for (int k = lid; k < dim * dim; k += WG_X)
-            grid[c * DMAX * DMAX + k] = 0.0f;
-    barrier(CLK_GLOBAL_MEM_FENCE);
     const int x0 = (t % ntx) * TILE, y0 = (t / ntx) * TILE;
     const int lo = (int)p[P_LO], hi = (int)p[P_HI], reach = (int)p[P_REACH];
     const float A = p[P_A], inv_s = 1.0f / p[P_SCALE], g = p[P_GUARD];
     const float2 bm = (float2)(p[P_BX], p[P_BY]);
     const int ax = max(0, x0 - reach), bx = min(width, x0 + TILE + reach);
     const int ay = max(0, y0 - reach), by = min(height, y0 + TILE + reach);
+    __global float *grid = grids + (size_t)slot * NCH * DMAX * DMAX;
+#if FIXED
+    /* 2^klog2 >= the samples this slot can read, exactly (ceil log2; n >= 1) */
+    const ulong nread = (ulong)(bx - ax) * (ulong)(by - ay) * SPP;
+    const int4 ex = fixed_exponents(bound, nread > 1 ? 64 - (int)clz(nread - 1) : 0);
+    const float4 sc = fixed_scales(ex);
+    __global long *acc = fixed + (size_t)slot * NCH * DMAX * DMAX;
+#else
+    const float4 sc = (float4)(1.0f);
+    __global float *acc = grid;
+#endif
+    for (int c = 0; c < NCH; ++c)
+        for (int k = lid; k < dim * dim; k += WG_X)
+            acc[c * DMAX * DMAX + k] = 0;
+    barrier(CLK_GLOBAL_MEM_FENCE);
     /* SUBSAMPLE (b_max, 1: off): a slot on a grid of spacing s > 1 gathers one pixel (all
      * its samples) per b x b block of the image, b = min(s, b_max): one grid pixel's worth
      * (>= SPP samples per grid pixel) while s <= b_max. The pixel is picked by a hash of the
@@ -212,15 +249,15 @@ void reproject(__global const float *color, __global const float *position,
                 for (int j = 0; j < VW; ++j) {
                     if (ia[j] < 0)
                         continue;
-                    __global float *cell = grid + ia[j];
+                    __global ACC *cell = acc + ia[j];
                     if (oa[j]) {
                         const float3 c = vload3(base + i0 + j, color);
-                        GRID_ADD(cell, c.x);
-                        GRID_ADD(cell + DMAX * DMAX, c.y);
-                        GRID_ADD(cell + 2 * DMAX * DMAX, c.z);
-                        GRID_ADD(cell + 3 * DMAX * DMAX, 1.0f);
+                        GRID_ADD(cell, c.x, sc.x);
+                        GRID_ADD(cell + DMAX * DMAX, c.y, sc.y);
+                        GRID_ADD(cell + 2 * DMAX * DMAX, c.z, sc.z);
+                        GRID_ADD(cell + 3 * DMAX * DMAX, 1.0f, sc.w);
                     } else {
-                        GRID_ADD(cell + 4 * DMAX * DMAX, 1.0f);
+                        GRID_ADD(cell + 4 * DMAX * DMAX, 1.0f, sc.w);
                     }
                 }
 #else
@@ -238,18 +275,39 @@ void reproject(__global const float *color, __global const float *position,
                     if (ix < -1.0f || iy < -1.0f || ix >= dim || iy >= dim)
                         continue;
                     const int jx = (int)ix, jy = (int)iy;
-                    splat(grid, dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own);
-                    splat(grid, dim, jx + 1, jy, wx * (1.0f - wy), c, own);
-                    splat(grid, dim, jx, jy + 1, (1.0f - wx) * wy, c, own);
-                    splat(grid, dim, jx + 1, jy + 1, wx * wy, c, own);
+                    splat(acc, dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own, sc);
+                    splat(acc, dim, jx + 1, jy, wx * (1.0f - wy), c, own, sc);
+                    splat(acc, dim, jx, jy + 1, (1.0f - wx) * wy, c, own, sc);
+                    splat(acc, dim, jx + 1, jy + 1, wx * wy, c, own, sc);
 #else
                     if (gxf < 0.0f || gyf < 0.0f || gxf >= dim || gyf >= dim)
                         continue;
-                    splat(grid, dim, (int)gxf, (int)gyf, 1.0f, c, own);
+                    splat(acc, dim, (int)gxf, (int)gyf, 1.0f, c, own, sc);
 #endif
                 }
 #endif
             }
         }
     }
+#if FIXED
+    /* every add of the group done and visible: the sums as floats */
+    barrier(CLK_GLOBAL_MEM_FENCE);
+    for (int k = lid; k < dim * dim; k += WG_X) {
+        grid[k] = fixed_value(acc[k], ex.x);
+        grid[DMAX * DMAX + k] = fixed_value(acc[DMAX * DMAX + k], ex.y);
+        grid[2 * DMAX * DMAX + k] = fixed_value(acc[2 * DMAX * DMAX + k], ex.z);
+        grid[3 * DMAX * DMAX + k] = fixed_value(acc[3 * DMAX * DMAX + k], ex.w);
+        grid[4 * DMAX * DMAX + k] = fixed_value(acc[4 * DMAX * DMAX + k], ex.w);
+    }
+#endif
 }
+
+#if FIXED
+/* FIXED: max |colour| per channel of the frame's nsamples samples into bound[0..2] (zeroed
+ * by the host), for the scales of reproject. */
+__kernel void reproject_color_bound(__global const float *color, const int nsamples,
+                                    volatile __global uint *bound)
+{
+    fixed_color_bound(color, nsamples, bound);
+}
+#endif

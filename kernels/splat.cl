@@ -24,12 +24,22 @@
  * Table: pts short2 (x, y), vals float, offs int (cells + 1); the same for d*; fast uchar.
  * Grid: gn (n0, n1), gsmax (smax0, smax1), ginvb (1/beta0, 1/beta1), levels int4 per 2D level
  *   (first cell, cells along axis 1, cells along axis 0, edge), nlev.
- * Compile-time: SPP, NDIM (1 or 2), HAS_MOTION (0: motion and time unused), NLAYERS.
+ * Compile-time: SPP, NDIM (1 or 2), HAS_MOTION (0: motion and time unused), NLAYERS,
+ * FIXED (1: deterministic=True, splat_samples only, below).
  * Tunables: WG (1D local size, informative).
  * Samples whose PSF would not fit whole into the padded image (centre closer than `reach`,
  * an upper bound of |offset| after rotation and rounding, to its border) are skipped: a
  * partial Laplacian would corrupt the integration. The host makes the pad wide enough that
  * only samples whose PSF cannot reach the frame are skipped.
+ *
+ * FIXED == 1 (deterministic=True with the atomic scatter): lap and direct are int64 images
+ * of the same layout, accumulated in scaled fixed point (common.h) with 2^e per channel,
+ * e = fixed_exponent(klog2, m), m = max |colour| of the channel (bound, from
+ * splat_color_bound; 1 for coverage), 2^klog2 >= the host's bound on sum |weight * value| a
+ * pixel receives per unit of colour (SplatPipeline: the pixels within reach of it times the
+ * largest L1 norm of a table cell). splat_fixed_to_float then writes the float images the
+ * integration reads. Integer sums do not depend on the order of the adds: bit-identical run
+ * to run.
  */
 #include "common.h"
 
@@ -47,6 +57,22 @@
 #endif
 #ifndef WG
 #define WG 64
+#endif
+#ifndef FIXED
+#define FIXED 0
+#endif
+#if FIXED && !CLRECON_HAS_FIXED
+#error "FIXED needs cl_khr_int64_base_atomics"
+#endif
+
+#if FIXED
+#define ACC long
+#define SPLAT_FIXED_ARGS , __global const uint *bound, const int klog2
+#define SPLAT_FIXED_PASS , bound, klog2
+#else
+#define ACC float
+#define SPLAT_FIXED_ARGS
+#define SPLAT_FIXED_PASS
 #endif
 
 #define MISS_DEPTH 1e30f
@@ -88,13 +114,20 @@ inline int splat_cell(float s0, float s1, int2 gn, float2 gsmax, float2 ginvb,
     __global const int *offs, __global const short2 *dpts, __global const float *dvals, \
     __global const int *doffs, __global const uchar *fast, const int2 gn, \
     const float2 gsmax, const float2 ginvb, __global const int4 *levels, const int nlev, \
-    __global float *lap, __global float *direct
+    __global ACC *lap, __global ACC *direct SPLAT_FIXED_ARGS
 #define SPLAT_PASS color, position, depth, lens, time, motion, nsamples, c0, c1, inv_far, \
     layer_scale, pad, pw, ph, reach, pts, vals, offs, dpts, dvals, doffs, fast, gn, gsmax, \
-    ginvb, levels, nlev, lap, direct
+    ginvb, levels, nlev, lap, direct SPLAT_FIXED_PASS
 
-inline void splat_add(__global float *dst, const float4 c, const int atomic)
+/* scale: FIXED's 2^e per channel (unused otherwise) */
+inline void splat_add(__global ACC *dst, const float4 c, const int atomic, const float4 scale)
 {
+#if FIXED
+    atomic_add_fixed_scaled(dst + 0, c.x, scale.x);
+    atomic_add_fixed_scaled(dst + 1, c.y, scale.y);
+    atomic_add_fixed_scaled(dst + 2, c.z, scale.z);
+    atomic_add_fixed_scaled(dst + 3, c.w, scale.w);
+#else
     if (atomic) {
         atomic_add_f32(dst + 0, c.x);
         atomic_add_f32(dst + 1, c.y);
@@ -103,6 +136,7 @@ inline void splat_add(__global float *dst, const float4 c, const int atomic)
     } else {
         vstore4(vload4(0, dst) + c, 0, dst);
     }
+#endif
 }
 
 /* Draw sample k; atomic: 0 only where no other work-item can write the same pixels. */
@@ -139,18 +173,23 @@ inline void splat_one(const int k, const int atomic, SPLAT_ARGS)
     __global const float *v = use_fast ? dvals : vals;
     const int first = use_fast ? doffs[cell] : offs[cell];
     const int last = use_fast ? doffs[cell + 1] : offs[cell + 1];
+#if FIXED
+    const float4 scale = fixed_scales(fixed_exponents(bound, klog2));
+#else
+    const float4 scale = (float4)(1.0f);
+#endif
     for (int sub = 0; sub < nsub; ++sub) {
         const float2 cs = centre + (((float)sub + 0.5f) / (float)nsub - 0.5f) * mot;
         const float fx = floor(cs.x) + pad, fy = floor(cs.y) + pad;
         if (!(fx >= reach && fy >= reach && fx < pw - reach && fy < ph - reach))
             continue;
         const int cx = (int)fx, cy = (int)fy;
-        __global float *img = (use_fast ? direct : lap) + (size_t)layer * ph * pw * 4
+        __global ACC *img = (use_fast ? direct : lap) + (size_t)layer * ph * pw * 4
                               + ((size_t)cy * pw + cx) * 4;
         if (mlen == 0.0f) {  /* no rotation: integer offsets (all of NDIM 1, static samples) */
             for (int j = first; j < last; ++j) {
                 const short2 o = p[j];
-                splat_add(img + ((int)o.y * pw + (int)o.x) * 4, v[j] * wgt, atomic);
+                splat_add(img + ((int)o.y * pw + (int)o.x) * 4, v[j] * wgt, atomic, scale);
             }
             continue;
         }
@@ -158,7 +197,7 @@ inline void splat_one(const int k, const int atomic, SPLAT_ARGS)
             const float2 o = convert_float2(p[j]);
             const int x = (int)rint(o.x * mdir.x - o.y * mdir.y);
             const int y = (int)rint(o.x * mdir.y + o.y * mdir.x);
-            splat_add(img + (y * pw + x) * 4, v[j] * wgt, atomic);
+            splat_add(img + (y * pw + x) * 4, v[j] * wgt, atomic, scale);
         }
     }
 }
@@ -171,6 +210,7 @@ __kernel void splat_samples(SPLAT_ARGS)
         splat_one(k, 1, SPLAT_PASS);
 }
 
+#if !FIXED
 /* One work-item per tile of tile x tile pixels, tiles (k i + phase_x, k j + phase_y): every
  * sample of the tile's pixels in order, plain adds. The host launches the k x k phases in
  * turn with (k - 1) * tile > 2 R - 1, R = reach + the largest centre shift + 1 (how far from
@@ -189,3 +229,27 @@ __kernel void splat_tiles(SPLAT_ARGS, const int width, const int height, const i
             for (int i = 0; i < SPP; ++i)
                 splat_one((y * width + x) * SPP + i, 0, SPLAT_PASS);
 }
+#else
+/* FIXED: max |colour| per channel of the frame's nsamples samples into bound[0..2] (zeroed
+ * by the host), for the scale of splat_samples and splat_fixed_to_float. */
+__kernel void splat_color_bound(__global const float *color, const int nsamples,
+                                volatile __global uint *bound)
+{
+    fixed_color_bound(color, nsamples, bound);
+}
+
+/* FIXED: the int64 images as floats, one work-item per float4 pixel of npix. */
+__kernel void splat_fixed_to_float(__global const long *src, __global float *dst,
+                                   const int npix, __global const uint *bound, const int klog2)
+{
+    const int i = get_global_id(0);
+    if (i >= npix)
+        return;
+    const int4 e = fixed_exponents(bound, klog2);
+    const size_t k = (size_t)i * 4;
+    dst[k + 0] = fixed_value(src[k + 0], e.x);
+    dst[k + 1] = fixed_value(src[k + 1], e.y);
+    dst[k + 2] = fixed_value(src[k + 2], e.z);
+    dst[k + 3] = fixed_value(src[k + 3], e.w);
+}
+#endif

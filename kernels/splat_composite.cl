@@ -16,7 +16,7 @@
  * flat field stays flat to the image borders.
  *   b, direct: float4 (NLAYERS, ph, pw); ring: float4 (NLAYERS); out: float (H, W, 3).
  * Compile-time: NLAYERS, USE_LAP (0 when everything was drawn densely), FILL_COV.
- * Tunables: WG_X, WG_Y (2D local size, informative).
+ * The 2D local size is a launch parameter only (tuned).
  */
 #ifndef NLAYERS
 #define NLAYERS 1
@@ -24,20 +24,20 @@
 #ifndef USE_LAP
 #define USE_LAP 1
 #endif
-#ifndef WG_X
-#define WG_X 16
-#endif
-#ifndef WG_Y
-#define WG_Y 4
-#endif
 #ifndef FILL_COV
 #define FILL_COV 0.1f
 #endif
 #define COV_EPS 1e-7f
 
+/* color, spp: the frame's samples; a pixel that no layer covers (no sample's PSF reached it,
+ * which happens at 1-4 spp), or whose layers give black, takes the mean of its own samples,
+ * the unbiased estimate, instead of black. spp = 0: no samples given, such a pixel stays as
+ * the layers make it. */
 __kernel void splat_composite(__global const float4 *b, __global const float4 *direct,
                                __global const float4 *ring, const int width, const int height,
-                               const int pad, const int pw, const int ph, __global float *out)
+                               const int pad, const int pw, const int ph,
+                               __global const float *color, const int spp,
+                               __global float *out)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= width || y >= height)
@@ -63,6 +63,17 @@ __kernel void splat_composite(__global const float4 *b, __global const float4 *d
         acc = a * colour + (1.0f - a) * acc;
         alpha = a + (1.0f - a) * alpha;
     }
-    const float3 res = alpha > 0.0f ? acc / alpha : (float3)(0.0f);
+    float3 res = (float3)(0.0f);
+    if (alpha > 0.0f)
+        res = acc / alpha;
+    /* no layer covers it, or what covers it is black after the clamp (a faint layer's
+     * ringing): the pixel's own samples decide */
+    if (spp > 0 && fmax(res.x, fmax(res.y, res.z)) <= 0.0f) {
+        res = (float3)(0.0f);
+        const __global float *c = color + ((size_t)y * width + x) * (size_t)spp * 3;
+        for (int i = 0; i < spp; ++i)
+            res += vload3(i, c);
+        res = fmax(res / (float)spp, 0.0f);
+    }
     vstore3(res, (size_t)y * width + x, out);
 }

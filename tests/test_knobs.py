@@ -55,6 +55,7 @@ BAD = {
         "reach": [0, 5000, 96.0],
         "subsample": [0, 65, 2.5, "lots"],
         "mip_images": [1, "yes"],
+        "deterministic": [1, "yes", None],
     },
     "splat": {
         "psf": ["gauss", 1],
@@ -64,6 +65,7 @@ BAD = {
         "fast_ratio": [-1.0, math.nan, math.inf, 1e9, "1"],
         "max_error": [-0.1, math.nan, -math.inf, "x"],
         "scatter": ["locks", 1],
+        "deterministic": [1, "yes", None],
     },
 }
 

@@ -11,7 +11,7 @@ from clrecon.splat import reference as ref
 from clrecon.splat.composite import Composite
 
 
-def run(device, prim, direct, ring, pad, h, w, use_lap=True):
+def run(device, prim, direct, ring, pad, h, w, use_lap=True, color=None):
     ctx, q = device.context, device.queue
     ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
     nl = prim.shape[0]
@@ -19,7 +19,11 @@ def run(device, prim, direct, ring, pad, h, w, use_lap=True):
     dd = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(direct, np.float32))
     dr = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ring, np.float32))
     out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, h * w * 12)
-    Composite(ctx, nl, use_lap)(q, db, dd, dr, w, h, pad, out)
+    dc, spp = None, 0
+    if color is not None:
+        dc = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(color, np.float32))
+        spp = color.shape[2]
+    Composite(ctx, nl, use_lap)(q, db, dd, dr, w, h, pad, out, color=dc, spp=spp)
     img = np.empty((h, w, 3), np.float32)
     cl.enqueue_copy(q, img, out)
     q.finish()
@@ -53,3 +57,21 @@ def test_flat_field_stays_flat_with_partial_coverage(device, rng):
     direct = np.concatenate([cov[..., None] * c, cov[..., None]], -1)
     got = run(device, np.zeros_like(direct), direct, np.zeros((nl, 4)), pad, h, w, False)
     assert_close(got, np.broadcast_to(c, got.shape), rtol=1e-5, what="flat field")
+
+
+def test_uncovered_pixels_take_their_samples_mean(device, rng):
+    """A pixel no layer covers (no sample's PSF reached it: 1-4 spp) is the mean of its own
+    samples, not black; covered pixels are untouched by the samples."""
+    h, w, pad, nl, spp = 8, 9, 2, 2, 3
+    direct = rng.uniform(0.2, 1.5, (nl, h + 2 * pad, w + 2 * pad, 4)).astype(np.float32)
+    direct[:, pad + 1:pad + 4, pad + 2:pad + 5] = 0.0  # a 3x3 hole in every layer
+    color = rng.uniform(0.0, 2.0, (h, w, spp, 3)).astype(np.float32)
+    zeros = np.zeros_like(direct)
+    got = run(device, zeros, direct, np.zeros((nl, 4)), pad, h, w, False, color=color)
+    want = ref.composite(-zeros, direct, pad, h, w, color=color)
+    assert_close(got, want, rtol=1e-5, atol=1e-6, what="composite with samples")
+    hole = np.zeros((h, w), bool)
+    hole[1:4, 2:5] = True
+    assert_close(got[hole], color.mean(2)[hole], rtol=1e-5, what="holes")
+    assert_close(got[~hole], run(device, zeros, direct, np.zeros((nl, 4)), pad, h, w,
+                                 False)[~hole], rtol=0, atol=0, what="covered pixels")

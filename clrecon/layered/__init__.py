@@ -70,6 +70,21 @@ faster; b = 4 -> 8 moved no scene by more than 0.11 dB). Samples are
 gathered from at most ``reach`` (96) px outside a tile: wider blurs are truncated and
 renormalised. Compositing divides by the accumulated opacity where nothing covers the back
 and falls back to the pixel's mean where nothing covers at all.
+
+Determinism (``deterministic``, default ``False``). ``reproject`` is the one pass that
+scatters: with one work-item per slot (``wg_x = 1``, the spec's default and the tuned choice
+on the CPUs measured) the item owns its slot's grid and adds in a fixed order, bit-identical
+run to run as it is; with a tuned ``wg_x > 1`` the group's items add with float atomics, whose
+order varies. ``deterministic=True`` makes those adds int64 fixed point (``kernels/common.h``)
+into ``grids_fixed`` (twice the grids' bytes), which the group converts to the float grids
+itself (plus ``color_bound``, 16 bytes: the frame's largest |colour| per channel, reduced
+first). Scale: a slot reads at most ``n = (bx - ax) (by - ay) spp`` samples (its gather
+window), each adding at most ``m_c`` (the channel's max |colour|; 1 for the weights) to a grid
+cell, so channel c is kept in units of ``2**(ceil(log2 n) + ilogb(m_c) + 1 - 61)`` and no
+sum can exceed ``2**61`` units: overflow is impossible for any valid frame. Each term is
+rounded once to a unit: about ``n * 2**-60`` of the brightest colour (2^-41 for a 32 px
+tile, reach 96, 8 spp); the weight channels hold counts exactly (nearest splat). Without
+``cl_khr_int64_base_atomics`` a deterministic plan runs ``wg_x = 1``.
 """
 from __future__ import annotations
 
@@ -86,7 +101,7 @@ from .filter_rotated import FilterRotated
 from .filter_sheared import FilterSheared
 from .partition_setup import PartitionSetup
 from .reference import NCH, NPAR, NSTAT, Layout, bucket_params, mip_levels, subsample_cap
-from .reproject import Reproject
+from .reproject import BOUND_BYTES, Reproject
 from .tile_stats import TileStats
 
 MODES = ("practical", "lrdm")
@@ -119,7 +134,8 @@ class LayeredPipeline(Pipeline):
                  max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
                  splat: str = "nearest", seed: int = 0, has_motion: bool | None = None,
                  recursions: int = 3, specialize: bool = True, reach: int = 96,
-                 subsample: int | bool = True, mip_images: bool | None = None):
+                 subsample: int | bool = True, mip_images: bool | None = None,
+                 deterministic: bool = False):
         super().__init__(context, info)
         mode = check_choice("mode", mode, MODES)
         filter = check_choice("filter", filter, FILTERS, none_ok=True)
@@ -146,6 +162,8 @@ class LayeredPipeline(Pipeline):
         reach = check_int("reach", reach, 1, MAX_REACH)
         subsample_cap(subsample)  # true, false or an int in [1, 64]
         mip_images = check_bool("mip_images", mip_images, none_ok=True)
+        self.deterministic = check_bool("deterministic", deterministic)
+        self.fixed = False  # reproject accumulates in fixed point (deterministic, wg_x > 1)
         self.recursions = int(recursions)
         self.subsample = subsample_cap(subsample)
         if mip_images is not None and filter != "mip":
@@ -188,8 +206,15 @@ class LayeredPipeline(Pipeline):
         self.bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
         self.stats_pass = TileStats(context, self.lay, self._local("tile_stats"))
         self.setup = PartitionSetup(context, self.lay, self._local("partition_setup"))
-        self.reproject = Reproject(context, self.lay, splat == "bilinear",
-                                   self._local("reproject"), self.subsample)
+        local = self._local("reproject")
+        if self.deterministic and local is not None and (local.x or 1) > 1:
+            if all("cl_khr_int64_base_atomics" in d.extensions.split()
+                   for d in context.devices):
+                self.fixed = True
+            else:  # no int64 atomics: the owned grid is deterministic as it is
+                local = LocalSize(1, 1)
+        self.reproject = Reproject(context, self.lay, splat == "bilinear", local,
+                                   self.subsample, fixed=self.fixed)
         if filter == "sheared":
             self.filt = FilterSheared(context, self.lay, self.recursions,
                                       self._local("filter_sheared"))
@@ -242,6 +267,8 @@ class LayeredPipeline(Pipeline):
                  "params": slots * NPAR * 4,
                  "grids": slots * NCH * lay.dmax ** 2 * 4,
                  "filtered": slots * NCH * lay.ft ** 2 * 4}
+        if self.fixed:
+            sizes |= {"grids_fixed": 2 * sizes["grids"], "color_bound": BOUND_BYTES}
         if self.filter == "rotated":
             sizes["tmp"] = sizes["grids"]
         if self.filter == "mip":
@@ -271,8 +298,9 @@ class LayeredPipeline(Pipeline):
         def reproject(queue, f, wait):
             b = f.buffers
             kabc = self.bucket_params(f.samples, f.info)
-            return [("reproject", self.reproject(queue, f.samples, kabc, b["params"],
-                                                 b["grids"], wait))]
+            self.reproject(queue, f.samples, kabc, b["params"], b["grids"], wait,
+                           b.get("grids_fixed"), b.get("color_bound"))
+            return list(self.reproject.events)
 
         def filt(queue, f, wait):
             b = f.buffers
@@ -287,10 +315,11 @@ class LayeredPipeline(Pipeline):
                                             f.width, f.height, b["out"], wait))]
 
         work = tuple(k for k in ("pyramid", "tmp") if k in temps)
+        fixed = ("grids_fixed", "color_bound") if self.fixed else ()
         return Plan("layered", f"{self.mode}/{self.filter}", fields, (
             Step("tile_stats", ("depth",), ("stats",), stats),
             Step("partition_setup", ("stats",), ("params",), setup),
-            Step("reproject", fields + ("params",), ("grids",), reproject),
+            Step("reproject", fields + ("params",), ("grids",) + fixed, reproject),
             Step(f"filter_{self.filter}", ("params", "grids"), work + ("filtered",), filt),
             Step("composite", ("color", "params", "filtered"), ("out",), composite)),
             temps, self.bounds)
@@ -303,7 +332,10 @@ class LayeredPipeline(Pipeline):
                 "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
                 "guard": self.lay.gmax, "reach": self.lay.reach_max,
                 "bucket_coc": self.bucket_coc, "splat": self.splat,
-                "subsample": self.subsample,
+                "subsample": self.subsample, "deterministic": self.deterministic,
+                "accumulation": ("box" if self.box is not None else "fixed point"
+                                 if self.fixed else "owner" if self.reproject.local.x == 1
+                                 else "float atomics"),
                 "recursions": self.recursions if self.filter == "sheared" else None,
                 "mip_images": self.mip_images,
                 "device_bytes": sum(self.buffer_sizes(self.info.width,

@@ -15,7 +15,30 @@ bokeh synthesis SSIM .972 against .961 with ``"f5"``),
 0.05: 8 of Combined's sparse cells have errors of 0.2-0.3, and a defocused background that
 reaches them comes out blotched, e.g. `deep` at 8 spp 28.3 dB sparse against 38.5 dB dense),
 ``scatter`` (``"atomic"`` or ``"tiles"``; default ``"tiles"`` on CPU devices, see
-:mod:`clrecon.splat.splat`).
+:mod:`clrecon.splat.splat`), ``deterministic`` (default ``False``; ``True``: bit-identical
+images run to run, below).
+
+Determinism. The owner tiles add in a fixed order, so ``scatter="tiles"`` is bit-identical
+run to run as it is. The atomic scatter adds floats in whatever order the device schedules
+(last bits vary); with ``deterministic=True`` it accumulates in int64 fixed point instead
+(integer sums do not depend on order; ``kernels/common.h``) and converts to float images
+after: plan steps ``color_bound`` (the frame's largest |colour| per channel) -> ``splat``
+into ``direct_fixed`` / ``lap_fixed`` -> ``fixed_to_float``. The scale: a pixel receives
+from the samples of the pixels within ``R = reach + shift + 1`` of it (the owner tiles rest
+on the same bound), each at most ``L1 * |colour| / spp`` (``L1`` the largest L1 norm of a
+table cell, motion sub-segments share the weight), so its sum of ``|weight * value|`` per
+unit of colour is below ``2**klog2 = npix * L1``, ``npix = min(2R + 1, W) * min(2R + 1,
+H)``; channel c is kept in units of ``2**(klog2 + ilogb(m_c) + 1 - 61)`` (``m_c`` the
+channel's max |colour|, 1 for coverage), so no sum can exceed ``2**61`` units: overflow is
+impossible for any valid frame (colours up to 1e30 included). Precision: each term is
+rounded once to a unit, at most ``2**(klog2 - 60)`` of the channel's brightest colour
+(``describe()["fixed_resolution"]``; klog2 is 16-21 for the built-in scenes at 256x256 and
+512x512, fast_motion 512x512 the largest: 2^-44 to 2^-39): far finer than float32 for
+values near the brightest, but a value ``2**-k`` of it keeps only ``60 - klog2 - k`` bits
+(float32 keeps 24), so a frame with a 1e30 highlight quantises the same channel's ordinary
+colours to units of about 1e30 * 2^-42 = 2e17 (nothing of them is left). Needs
+``cl_khr_int64_base_atomics``: without it the default scatter becomes ``"tiles"`` and an
+explicit ``"atomic"`` is refused.
 When every cell the frame can reach is on the fast track the Laplacian images and the
 integration are skipped; when moreover every such PSF is the unit pixel and no sample moves
 from its pixel (a static in-focus frame), the plan is the box filter (``plan`` in
@@ -39,7 +62,7 @@ from .composite import Composite
 from .integrate import Integrate
 from .psf import MODELS
 from .reference import PYRAMIDS
-from .splat import SCATTERS, Splat
+from .splat import BOUND_BYTES, SCATTERS, Splat
 from .tables import DeviceTable, host_table
 
 log = logging.getLogger(__name__)
@@ -66,7 +89,8 @@ class SplatPipeline(Pipeline):
 
     def __init__(self, context, info, psf: str | None = None, layers: int = 4,
                  pyramid: str = "f7", dense: bool = False, fast_ratio: float = 1.0,
-                 max_error: float = MAX_ERROR, scatter: str | None = None):
+                 max_error: float = MAX_ERROR, scatter: str | None = None,
+                 deterministic: bool = False):
         super().__init__(context, info)
         psf = check_choice("psf", psf, sorted(MODELS), none_ok=True)
         pyramid = check_choice("pyramid", pyramid, sorted(PYRAMIDS))
@@ -76,6 +100,7 @@ class SplatPipeline(Pipeline):
         max_error = check_float("max_error", max_error, 0.0, allow_inf=True,
                                 what="(inf: never drawn densely for its error)")
         scatter = check_choice("scatter", scatter, SCATTERS, none_ok=True)
+        self.deterministic = check_bool("deterministic", deterministic)
         self.psf = psf or ("combined" if info.has_motion else "simplelens")
         self.psf_source = "api" if psf else "inspect"
         self.dense, self.fast_ratio = bool(dense), float(fast_ratio)
@@ -142,12 +167,20 @@ class SplatPipeline(Pipeline):
             self.tuning[pass_name] = found.source
             return found.config
 
+        int64 = all("cl_khr_int64_base_atomics" in d.extensions.split()
+                    for d in context.devices)
         if scatter is None:  # CAS float atomics cost ~10 plain adds on CPUs
             cpu = bool(context.devices[0].type & cl.device_type.CPU)
-            scatter = "tiles" if cpu else "atomic"
+            scatter = "tiles" if cpu or (self.deterministic and not int64) else "atomic"
+        elif self.deterministic and scatter == "atomic" and not int64:
+            raise ValueError("deterministic: scatter='atomic' accumulates in int64 fixed point, "
+                             "which needs cl_khr_int64_base_atomics; the device lacks it "
+                             "(scatter='tiles' is deterministic as it is)")
+        self.fixed = self.deterministic and scatter == "atomic"
+        self.klog2 = self._fixed_klog2(info) if self.fixed else 0
         cfg = config("splat")
         self.splat = Splat(context, info.spp, ndim, self.has_motion, self.layers,
-                           None if cfg is None else int(cfg["wg"]), scatter)
+                           None if cfg is None else int(cfg["wg"]), scatter, fixed=self.fixed)
         self.composite = Composite(context, self.layers, self.use_lap,
                                    local_size_of(config("splat_composite")))
         self.pyramid = pyramid
@@ -156,6 +189,15 @@ class SplatPipeline(Pipeline):
         self.set_plan(self._plan(info, shape_bounds(info, "kernels compiled for this spp")
                                  + tuple(bounds)))
 
+    def _fixed_klog2(self, info) -> int:
+        """``deterministic``: ``klog2`` with ``2**klog2`` >= the sum of ``|weight * value|``
+        any pixel receives per unit of colour (module docstring)."""
+        r = self.reach + int(np.ceil(min(self.shift, 2.0**30))) + 1
+        npix = min(2 * r + 1, info.width) * min(2 * r + 1, info.height)
+        t = self.table
+        l1 = max(_cell_l1(t.vals, t.offs), _cell_l1(t.dvals, t.doffs))
+        return max(0, int(np.ceil(np.log2(max(npix * l1, 1.0)))))
+
     def _plan(self, info, bounds) -> Plan:
         img = self.layers * self.shape[0] * self.shape[1] * 16
         temps = {"direct": img, "ring": self.layers * 16}
@@ -163,18 +205,35 @@ class SplatPipeline(Pipeline):
             temps |= {"lap": img, "prim": img}
         lap = "lap" if self.use_lap else "direct"
         prim = "prim" if self.use_lap else "direct"
+        # what the splat step accumulates into: the float images, or (fixed) int64 ones
+        acc = {k: k + "_fixed" if self.fixed else k for k in ("direct", lap)}
+        if self.fixed:
+            temps |= {acc[k]: 2 * img for k in acc} | {"color_bound": BOUND_BYTES}
+        targets = tuple(acc.values())
 
         def clear(queue, f, wait):
             return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
-                                                     img, wait_for=wait))
-                    for k in dict.fromkeys(("direct", lap))]
+                                                     temps[k], wait_for=wait))
+                    for k in targets]
+
+        def color_bound(queue, f, wait):
+            self.splat.color_bound(queue, f.samples, f.buffers["color_bound"], wait)
+            clear_ev, ev = self.splat.events
+            return [("clear", clear_ev), ("splat_color_bound", ev)]
 
         def splat(queue, f, wait):
             b = f.buffers
             inv_far, scale = _layer_params(f.info, self.layers)
             self.splat(queue, f.samples, self.device_table, inv_far, scale, self.pad,
-                       self.reach, b[lap], b["direct"], wait, self.shift)
+                       self.reach, b[acc[lap]], b[acc["direct"]], wait, self.shift,
+                       b.get("color_bound"), self.klog2)
             return [("splat", e) for e in self.splat.events]
+
+        def to_float(queue, f, wait):
+            b, npix = f.buffers, img // 16
+            return [("splat_fixed_to_float", self.splat.to_float(
+                queue, b[acc[k]], b[k], npix, b["color_bound"], self.klog2, wait))
+                for k in acc]
 
         def integrate(queue, f, wait):
             b, evs = f.buffers, []
@@ -188,13 +247,20 @@ class SplatPipeline(Pipeline):
             b = f.buffers
             return [("splat_composite", self.composite(
                 queue, b[prim], b["direct"], b["ring"], f.width, f.height, self.pad,
-                b["out"], wait))]
+                b["out"], wait, color=b["color"], spp=f.spp))]
 
-        steps = [Step("clear", (), tuple(dict.fromkeys(("direct", lap))), clear),
-                 Step("splat", tuple(FIELDS), tuple(dict.fromkeys(("direct", lap))), splat)]
+        steps = [Step("clear", (), targets, clear)]
+        if self.fixed:
+            steps.append(Step("color_bound", ("color",), ("color_bound",), color_bound))
+        steps.append(Step("splat", tuple(FIELDS) + (("color_bound",) if self.fixed else ()),
+                          targets, splat))
+        if self.fixed:
+            steps.append(Step("fixed_to_float", targets + ("color_bound",), tuple(acc),
+                              to_float))
         if self.use_lap:
             steps.append(Step("integrate", ("lap",), ("prim", "ring"), integrate))
-        steps.append(Step("splat_composite", (prim, "direct", "ring"), ("out",), composite))
+        steps.append(Step("splat_composite", (prim, "direct", "ring", "color"), ("out",),
+                          composite))
         return Plan("splat", "splat", tuple(FIELDS), tuple(steps),
                     temps, tuple(bounds))
 
@@ -229,7 +295,8 @@ class SplatPipeline(Pipeline):
         if self.plan_name == "box":
             return {"method": "splat", "plan": "box", "psf": self.psf,
                     "psf_source": self.psf_source, "has_motion": False, "layers": 1,
-                    "integrate": False, "tuning": self.tuning}
+                    "integrate": False, "deterministic": self.deterministic,
+                    "accumulation": "box", "tuning": self.tuning}
         return {"method": "splat", "plan": self.plan.name, "psf": self.psf,
                 "psf_source": self.psf_source,
                 "mode": "dense" if self.dense else "sparse", "layers": self.layers,
@@ -238,7 +305,10 @@ class SplatPipeline(Pipeline):
                 "reach": self.reach, "fast_ratio": self.fast_ratio,
                 "max_error": self.max_error if np.isfinite(self.max_error) else None,
                 "clamped": self.clamped, "motion_split": self.motion_split,
-                "scatter": self.splat.scatter,
+                "scatter": self.splat.scatter, "deterministic": self.deterministic,
+                "accumulation": ("fixed point" if self.fixed else "owner tiles"
+                                 if self.splat.scatter == "tiles" else "float atomics"),
+                "fixed_resolution": 2.0 ** (self.klog2 - 60) if self.fixed else None,
                 "fast_cells": int(self.table.fast.sum()), "cells": len(self.table.fast),
                 "bounds": [b.describe() for b in self.plan.bounds], "tuning": self.tuning}
 
@@ -261,3 +331,10 @@ def _layer_params(info, layers: int) -> tuple[float, float]:
     (kernel arguments, so each frame gets its own placement)."""
     inv_near, inv_far = _inv_range(info)
     return inv_far, (layers / (inv_near - inv_far) if inv_near > inv_far else 0.0)
+
+
+def _cell_l1(vals: np.ndarray, offs: np.ndarray) -> float:
+    """The largest L1 norm of a cell's values (cells ``offs[i]:offs[i + 1]``)."""
+    csum = np.concatenate([[0.0], np.cumsum(np.abs(vals.astype(np.float64)))])
+    offs = np.asarray(offs, np.int64)
+    return float((csum[offs[1:]] - csum[offs[:-1]]).max(initial=0.0))

@@ -21,8 +21,14 @@ class Composite:
                                  {"NLAYERS": nlayers, "USE_LAP": int(use_lap)})
 
     def __call__(self, queue, b: cl.Buffer, direct: cl.Buffer, ring: cl.Buffer, width: int,
-                 height: int, pad: int, out: cl.Buffer, wait_for=None) -> cl.Event:
+                 height: int, pad: int, out: cl.Buffer, wait_for=None,
+                 color: cl.Buffer | None = None, spp: int = 0) -> cl.Event:
+        """``color`` and ``spp``: the frame's samples, whose per-pixel mean fills a pixel no
+        layer covers (without them such a pixel is 0)."""
+        if color is None:
+            color, spp = b, 0
         self.kernel.set_args(b, direct, ring, np.int32(width), np.int32(height), np.int32(pad),
-                             np.int32(width + 2 * pad), np.int32(height + 2 * pad), out)
+                             np.int32(width + 2 * pad), np.int32(height + 2 * pad), color,
+                             np.int32(spp), out)
         g, loc = self.local.for_range(width, height)
         return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)

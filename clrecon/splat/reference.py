@@ -159,9 +159,11 @@ def splat(buf, table, grid, nlayers: int, inv_range: tuple[float, float], pad: i
 
 
 def composite(prim: np.ndarray, direct: np.ndarray, pad: int, h: int, w: int,
-              fill_cov: float = FILL_COV) -> np.ndarray:
+              fill_cov: float = FILL_COV, color: np.ndarray | None = None) -> np.ndarray:
     """The ``composite`` pass: (H, W, 3) from the per-layer anchored integrals ``prim`` (the
-    image, not the Laplacian) and direct images, back to front (layer 0 the farthest)."""
+    image, not the Laplacian) and direct images, back to front (layer 0 the farthest). A
+    pixel no layer covers, or whose layers give black, takes the mean of its samples'
+    ``color`` (H, W, S, 3) when given."""
     out = np.zeros((h, w, 3))
     alpha = np.zeros((h, w))
     filled = np.zeros((h, w), bool)
@@ -176,4 +178,9 @@ def composite(prim: np.ndarray, direct: np.ndarray, pad: int, h: int, w: int,
         out = a[..., None] * colour + (1.0 - a[..., None]) * out
         alpha = a + (1.0 - a) * alpha
         filled |= fill
-    return np.where(alpha[..., None] > 0, out / np.where(alpha > 0, alpha, 1.0)[..., None], 0.0)
+    res = np.where(alpha[..., None] > 0, out / np.where(alpha > 0, alpha, 1.0)[..., None], 0.0)
+    if color is None:
+        return res
+    # no layer covers the pixel, or what covers it is black: its own samples' mean
+    hole = res.max(-1) <= 0
+    return np.where(hole[..., None], np.maximum(color.astype(np.float64).mean(2), 0.0), res)

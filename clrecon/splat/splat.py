@@ -5,6 +5,12 @@ Two scatter strategies (``scatter``): ``"atomic"``, one work-item per sample wit
 adds (any device); ``"tiles"``, one work-item per screen tile in ``phases x phases`` launches
 so that no two work-items of a launch write the same pixel, with plain adds (CPUs: a CAS float
 atomic costs ~10 plain adds there; the result is also bit-reproducible).
+
+``fixed=True`` (``deterministic=True`` of the method, atomic scatter only): the atomic adds go
+into int64 images in scaled fixed point (``kernels/common.h``), so that the sums are
+bit-identical run to run: :meth:`Splat.color_bound` first reduces the frame's largest
+|colour| per channel (the scale), the pass accumulates, and :meth:`Splat.to_float` writes
+the float images the integration reads.
 """
 from __future__ import annotations
 
@@ -17,6 +23,11 @@ from .tables import DeviceTable
 
 SCATTERS = ("atomic", "tiles")
 MIN_TILE = 16
+#: the colour bound of ``fixed``: max |r|, |g|, |b| as uint bits (and one word of padding)
+BOUND_BYTES = 16
+#: work-items of the colour-bound reduction (a multiple of 3: one channel per item); few
+#: enough that its 3072 atomic maxima cost nothing, enough to spread the reads
+BOUND_ITEMS = 3 * 1024
 
 
 class Splat:
@@ -25,16 +36,25 @@ class Splat:
     name = "splat"
 
     def __init__(self, context: cl.Context, spp: int, ndim: int, has_motion: bool, nlayers: int,
-                 wg: int | None = 64, scatter: str = "atomic", phases: int = 4):
+                 wg: int | None = 64, scatter: str = "atomic", phases: int = 4,
+                 fixed: bool = False):
         if scatter not in SCATTERS:
             raise ValueError(f"scatter: expected one of {SCATTERS}, got {scatter!r}")
         if int(phases) < 2:
             raise ValueError(f"phases: must be >= 2, got {phases}")
+        if fixed and scatter != "atomic":
+            raise ValueError("fixed: the fixed-point images are for scatter='atomic' (the "
+                             f"owner tiles add in a fixed order already), got {scatter!r}")
         self.wg, self.scatter, self.phases = wg, scatter, int(phases)
+        self.fixed = bool(fixed)
         name = "splat_samples" if scatter == "atomic" else "splat_tiles"
-        self.kernel = get_kernel(context, "splat", name,
-                                 {"SPP": spp, "NDIM": ndim, "HAS_MOTION": int(has_motion),
-                                  "NLAYERS": nlayers})
+        defines = {"SPP": spp, "NDIM": ndim, "HAS_MOTION": int(has_motion),
+                   "NLAYERS": nlayers, "FIXED": int(self.fixed)}
+        self.kernel = get_kernel(context, "splat", name, defines)
+        if self.fixed:
+            self.bound_kernel = get_kernel(context, "splat", "splat_color_bound", defines)
+            self.to_float_kernel = get_kernel(context, "splat", "splat_fixed_to_float",
+                                              defines)
         self.events: list[cl.Event] = []
 
     @staticmethod
@@ -50,9 +70,13 @@ class Splat:
 
     def __call__(self, queue, samples: DeviceSamples, table: DeviceTable, inv_far: float,
                  layer_scale: float, pad: int, reach: int, lap: cl.Buffer, direct: cl.Buffer,
-                 wait_for=None, shift: float = 0.0) -> cl.Event:
+                 wait_for=None, shift: float = 0.0, bound: cl.Buffer | None = None,
+                 klog2: int = 0) -> cl.Event:
         """Enqueue the pass; ``shift`` bounds how far a re-centred centre lies from its
-        sample's pixel (``"tiles"`` only). ``self.events`` then holds every launch's event."""
+        sample's pixel (``"tiles"`` only). ``self.events`` then holds every launch's event.
+        With ``fixed``, ``lap`` and ``direct`` are the int64 images, ``bound`` what
+        :meth:`color_bound` wrote and ``2**klog2`` the bound on the sum of
+        ``|weight * value|`` a pixel receives per unit of colour."""
         w, h = samples.width, samples.height
         n = h * w * samples.spp
         c0, c1 = samples.coc
@@ -63,6 +87,10 @@ class Splat:
                 np.int32(pw), np.int32(ph), np.int32(reach), table.pts, table.vals,
                 table.offs, table.dpts, table.dvals, table.doffs, table.fast, table.gn,
                 table.gsmax, table.ginvb, table.levels, np.int32(table.nlev), lap, direct]
+        if self.fixed:
+            if bound is None:
+                raise ValueError("fixed: the pass needs the colour bound buffer")
+            args += [bound, np.int32(klog2)]
         if self.scatter == "atomic":
             self.kernel.set_args(*args)
             loc = None if self.wg is None else (self.wg,)
@@ -89,3 +117,25 @@ class Splat:
                 self.events.append(ev)
                 evs = [ev]
         return self.events[-1]
+
+    def color_bound(self, queue, samples: DeviceSamples, bound: cl.Buffer,
+                    wait_for=None) -> cl.Event:
+        """``fixed``: the largest |colour| of each channel into ``bound`` (16 bytes), the
+        scale of the fixed-point images. ``self.events`` then holds the clear and the
+        reduction."""
+        n = samples.width * samples.height * samples.spp
+        clear = cl.enqueue_fill_buffer(queue, bound, np.uint32(0), 0, BOUND_BYTES,
+                                       wait_for=wait_for)
+        self.bound_kernel.set_args(samples["color"], np.int32(n), bound)
+        ev = cl.enqueue_nd_range_kernel(queue, self.bound_kernel, (BOUND_ITEMS,), None,
+                                        wait_for=[clear])
+        self.events = [clear, ev]
+        return ev
+
+    def to_float(self, queue, src: cl.Buffer, dst: cl.Buffer, npix: int, bound: cl.Buffer,
+                 klog2: int, wait_for=None) -> cl.Event:
+        """``fixed``: ``npix`` float4 pixels of the int64 image ``src`` as floats into
+        ``dst``."""
+        self.to_float_kernel.set_args(src, dst, np.int32(npix), bound, np.int32(klog2))
+        return cl.enqueue_nd_range_kernel(queue, self.to_float_kernel, (npix,), None,
+                                          wait_for=wait_for)
