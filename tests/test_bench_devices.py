@@ -5,16 +5,31 @@ from __future__ import annotations
 import copy
 import csv
 import json
+import math
 import os
 
+import numpy as np
 import pytest
 
-from clrecon.bench.devices import ROW_KEYS, bench, compare, write_outputs
+from clrecon.bench.devices import (
+    DEFAULT_VARIANTS,
+    PEAK_CONFIG,
+    ROW_KEYS,
+    bench,
+    compare,
+    plot_bandwidth,
+    variant_list,
+    write_outputs,
+)
 from clrecon.cli import main
 from clrecon.device import get_device
+from clrecon.samples import FIELDS
 
 SIZE, SPP, REPEATS = (32, 24), 2, 3
-VARIANTS = [("box", "box", {}), ("sweep dof-layers", "sweep", {"dof_layers": True})]
+# the papers' method alone (the safeguard, on by default, runs it on halves too: see
+# test_safeguarded_method_is_looked_into)
+VARIANTS = [("box", "box", {}),
+            ("sweep dof-layers", "sweep", {"dof_layers": True, "safeguard": False})]
 
 
 @pytest.fixture(scope="module")
@@ -133,6 +148,153 @@ def test_cli_methods_option(tmp_path, capsys):
 
     out = tmp_path / "m.json"
     assert main(["bench", "--devices", "0", "--size", "16x16", "--spp", "2", "--repeats", "3",
-                 "--methods", "box,sweep", "--json", str(out)]) == 0
+                 "--methods", "box,sweep", "--only", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["rows"]
     assert {r["method"] for r in rows} == {"box", "sweep"}
+
+
+# -- variants: --methods adds, --only restricts ----------------------------------------------
+
+def test_variant_list_adds_to_the_defaults():
+    defaults = [(lab, m, dict(k)) for lab, m, k in DEFAULT_VARIANTS]
+    assert variant_list() == defaults
+    extra = [("box", "box", {}), ("sweep", "sweep", {}), ("s4", "sweep", {"scales": 4})]
+    assert variant_list(extra) == defaults + extra[1:]  # the default box is not repeated
+    assert variant_list(extra, only=True) == extra
+    with pytest.raises(ValueError, match="--only"):
+        variant_list([], only=True)
+
+
+def test_cli_methods_add_to_the_default_variants(tmp_path):
+    out = tmp_path / "m.json"
+    assert main(["bench", "--devices", "0", "--size", "16x16", "--spp", "2", "--repeats", "3",
+                 "--no-peak", "--methods", "box,splat", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    labels = [v["label"] for v in data["variants"]]
+    assert labels == [lab for lab, _, _ in DEFAULT_VARIANTS] + ["splat"]
+    assert {r["method"] for r in data["rows"]} == set(labels)
+    # a variant that takes a default's label for something else is refused by name
+    assert main(["bench", "--devices", "0", "--variant", "box=sweep"]) == 2
+    assert main(["bench", "--devices", "0", "--only"]) == 2
+
+
+# -- bandwidth -------------------------------------------------------------------------------
+
+def _bytes_of_plan(pipe, samples_bytes: dict, out_bytes: int) -> dict:
+    """Per step: inputs + outputs at the plan's sizes (computed from the plan, not from the
+    buffers the bench saw bound)."""
+    sizes = dict(samples_bytes) | dict(pipe.plan.temporaries) | {"out": out_bytes}
+    return {s.name: sum(sizes[n] for n in s.inputs + s.outputs) for s in pipe.plan.steps}
+
+
+def test_bandwidth_rows(result):
+    from clrecon.pipeline import make_pipeline
+    from clrecon.tune.specs import synthetic_frame
+
+    dev = get_device(0)
+    label = dev.info.label
+    rows = result["rows"]
+    peak = result["peaks"][label]["copy"]
+    assert peak["gb_per_s"] > 0 and math.isfinite(peak["gb_per_s"])
+    w, h = SIZE
+    npx = w * h
+    buf = synthetic_frame(w, h, SPP)
+    fields = {"color": npx * SPP * 12, "depth": npx * SPP * 4}
+    expect = {"box": {"box": fields["color"] + npx * 12}}
+    pipe = make_pipeline("sweep", dev.context, buf.inspect(), dof_layers=True, safeguard=False)
+    expect["sweep dof-layers"] = _bytes_of_plan(pipe, fields, npx * 12)
+    assert set(expect["sweep dof-layers"]) == {"sweep_layer_sums", "sweep_layer_resolve"}
+    for method, passes in expect.items():
+        (run,) = [r for r in result["runs"] if r["method"] == method]
+        assert run["pass_bytes"] == passes
+        for name, nbytes in [*passes.items(), ("frame", sum(passes.values()))]:
+            def val(metric, name=name, method=method):
+                return _value(rows, method=method, config="tuned", metric=metric,
+                              **{"pass": name})
+            assert val("bytes") == nbytes
+            ms = val("median_ms")
+            assert val("gb_per_s") == pytest.approx(nbytes / (ms * 1e6))
+            assert val("fraction_of_peak") == pytest.approx(val("gb_per_s") / peak["gb_per_s"])
+        assert _value(rows, method=method, config=PEAK_CONFIG, metric="peak_gb_per_s",
+                      **{"pass": "frame"}) == peak["gb_per_s"]
+    assert "GB/s" in result["markdown"] and "copy_float4" in result["markdown"]
+    assert "Per pass, devices side by side" in result["markdown"]
+
+
+def test_safeguarded_method_is_looked_into():
+    """A safeguarded method runs as two steps of sub-pipelines (the frame, both halves): the
+    bench reports the method's own passes, each half-frame pass counting both halves, and a
+    two-kernel pass (layered's filter_sheared) as one row beside its kernels."""
+    from clrecon.pipeline import make_pipeline
+    from clrecon.tune.specs import synthetic_frame
+
+    w, h = SIZE
+    npx = w * h
+    res = bench(devices=[0], variants=[("layered", "layered", {})], size=SIZE, spp=SPP,
+                repeats=REPEATS, peak=False)
+    (run,) = res["runs"]
+    pb = run["pass_bytes"]
+    sheared = "filter_sheared_x + filter_sheared_y"
+    assert {"safeguard_split", "reproject", "reproject (halves)", sheared,
+            "filter_sheared_x (halves) + filter_sheared_y (halves)",
+            "safeguard_stats", "safeguard_blend"} <= set(pb)
+    assert run["step_kernels"][sheared] == ["filter_sheared_x", "filter_sheared_y"]
+    dev = get_device(0)
+    paper = make_pipeline("layered", dev.context, synthetic_frame(w, h, SPP).inspect(),
+                          safeguard=False)
+    full = {f: npx * SPP * 4 * int(np.prod(FIELDS[f])) for f in FIELDS}
+    half = {f: v // SPP for f, v in full.items()}  # 2 spp: 1 + 1 per pixel
+    own = _bytes_of_plan(paper, full, npx * 12)
+    halves = _bytes_of_plan(paper, half, npx * 12)
+    assert pb["reproject"] == own["reproject"]
+    assert pb["reproject (halves)"] == 2 * halves["reproject"]
+    assert pb[sheared] == own["filter_sheared"]
+    rows = res["rows"]
+    ms = _value(rows, config="tuned", metric="median_ms", **{"pass": sheared})
+    parts = [_value(rows, config="tuned", metric="min_ms", **{"pass": k})
+             for k in run["step_kernels"][sheared]]
+    assert ms >= sum(parts) * 0.999
+    frac = _value(rows, config="tuned", metric="fraction_of_peak", **{"pass": sheared})
+    assert math.isnan(frac)  # peak=False: no peak to compare with
+    peak_rows = [r for r in rows if r["config"] == PEAK_CONFIG]
+    assert peak_rows and all(math.isnan(r["value"]) for r in peak_rows)
+    md = res["markdown"]
+    assert f"| {sheared} |" in md and "not measured" in md
+    assert md.index("| filter_sheared_y |") < md.index(f"| {sheared} |")
+
+
+def test_plot_bandwidth(result, tmp_path):
+    png = plot_bandwidth(result, tmp_path / "sub" / "bw.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_plot_and_clpeak_flag(tmp_path, monkeypatch, capsys):
+    from clrecon.bench import bandwidth
+
+    monkeypatch.setattr(bandwidth.shutil, "which", lambda name: None)  # clpeak absent
+    png = tmp_path / "bw.png"
+    assert main(["bench", "--devices", "0", "--size", "16x16", "--spp", "2", "--repeats", "3",
+                 "--only", "--variant", "box", "--clpeak", "--plot", str(png)]) == 0
+    assert png.stat().st_size > 0
+    assert "| not installed |" in capsys.readouterr().out
+    assert main(["bench", "--devices", "0", "--only", "--variant", "box",
+                 "--plot", str(tmp_path / "bw.jpg")]) == 2
+
+
+def test_devices_take_turns_variant_by_variant(monkeypatch):
+    """Every device runs a variant before any runs the next (the machine's drifting load is
+    shared out), all on the same samples; here the second device is the first under another
+    name."""
+    import dataclasses
+
+    from clrecon.bench import devices as bd
+
+    dev = get_device(0)
+    twin = dataclasses.replace(dev, info=dataclasses.replace(dev.info, name="twin"))
+    monkeypatch.setattr(bd, "_select_devices", lambda spec: [dev, twin])
+    res = bench(devices="all", variants=VARIANTS, size=SIZE, spp=SPP, repeats=REPEATS,
+                peak=False)
+    assert [(r["method"], r["device"]) for r in res["runs"]] == [
+        (v, d) for v, _, _ in VARIANTS for d in (dev.info.label, twin.info.label)]
+    assert res["devices"] == [dev.info.label, twin.info.label]
+    assert f"ms {twin.info.label} / {dev.info.label}" in res["markdown"]
