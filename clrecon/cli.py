@@ -129,15 +129,12 @@ def _parse_knobs(items) -> dict:
 def _check_knob_names(method: str, knobs: dict, what: str = "") -> None:
     """Unknown methods and knobs as a ``ValueError`` before any work (the library's
     ``make_pipeline`` says ``TypeError``, an API misuse there, a typo here)."""
-    import inspect
-
-    from .pipeline import METHODS, _load_methods
+    from .pipeline import METHODS, _load_methods, method_knobs
 
     _load_methods()
     if method not in METHODS:
         raise ValueError(f"{what}method: unknown {method!r}; available: {sorted(METHODS)}")
-    accepted = set(inspect.signature(METHODS[method].__init__).parameters) - {
-        "self", "context", "info"}
+    accepted = method_knobs(method)
     unknown = sorted(set(knobs) - accepted)
     if unknown:
         raise ValueError(f"{what}method {method!r} got unknown knobs: {unknown}; it takes "
@@ -349,13 +346,20 @@ def cmd_reconstruct(args) -> int:
                 flag = "--" + name.replace("_", "-")
                 raise ValueError(f"--knob {name}: also given as {flag}; give it once")
             knobs[name] = value
+    if args.safeguard is not None:
+        if "safeguard" in knobs:
+            raise ValueError("--knob safeguard: also given as --safeguard; give it once")
+        knobs["safeguard"] = args.safeguard
     _check_knob_names(args.method, knobs)
     reads = {"input": _sample_files(args.input)}
     if args.reference:
         reads["--reference"] = [str(args.reference)]
         _refuse_sample_file("--reference", args.reference)
-    _check_files(reads, {"-o": [str(args.output)]})
+    writes = {"-o": [str(args.output)]} | ({"--error": [str(args.error)]} if args.error else {})
+    _check_files(reads, writes)
     _check_output("-o", args.output, IMAGE_EXTENSIONS)
+    if args.error:
+        _check_output("--error", args.error, (".exr",))
     _stage(args, "reading samples", args.input)
     buf = load_samples(args.input, allow_negative=args.allow_negative)
     ref = None
@@ -365,9 +369,12 @@ def cmd_reconstruct(args) -> int:
         _stage(args, "reading the reference", args.reference)
         ref = load_image(args.reference)
     _stage(args, f"reconstructing {args.input} with {args.method}")
-    res = run(buf, args.method, args.device, allow_negative=args.allow_negative, **knobs)
+    res = run(buf, args.method, args.device, allow_negative=args.allow_negative,
+              estimate_error=bool(args.error), **knobs)
     _stage(args, "writing", args.output)
     save_image(args.output, res.image)
+    if args.error:
+        save_image(args.error, np.repeat(res.error[..., None], 3, -1))
     out = {"input": str(args.input), "output": str(args.output), "device": res.device,
            "size": [buf.width, buf.height], "spp": buf.spp, **res.method,
            "pass_ms": res.pass_ms, "device_ms": res.device_ms, "upload_ms": res.upload_ms,
@@ -445,10 +452,10 @@ def reference_cache_dir() -> Path | None:
     return cache_dir("references")
 
 
-def _reference_cache_name(scene, w: int, h: int, spp: int, seed: int) -> str:
+def _reference_cache_name(scene, w: int, h: int, spp: int, seed: int, device) -> str:
     """File name of a cached reference: what it is, and a digest of everything it depends
     on (the renderer's kernel source with its headers, the host renderer, the scene's
-    definition)."""
+    definition, the device that renders it: its platform, name and driver)."""
     import hashlib
 
     from .device import source_hash
@@ -457,7 +464,7 @@ def _reference_cache_name(scene, w: int, h: int, spp: int, seed: int) -> str:
     digest = hashlib.sha256()
     for part in ("clrecon-reference/1", scene.name, f"{w}x{h}", str(spp), str(seed),
                  source_hash("raytrace"), Path(render_module.__file__).read_text(),
-                 repr(scene)):
+                 repr(scene), device.info.label, device.info.driver):
         data = part.encode()
         digest.update(len(data).to_bytes(8, "little"))
         digest.update(data)
@@ -498,6 +505,7 @@ def _store_cached_reference(path: Path | None, img: np.ndarray) -> bool:
 
 
 def cmd_demo(args) -> int:
+    from .device import trusted_device
     from .io import save_image
     from .metrics import evaluate
     from .pipeline import run
@@ -511,6 +519,8 @@ def cmd_demo(args) -> int:
         raise ValueError(f"--methods: no method in {args.methods!r}")
     _check_output_dir("-o", args.output)
     scene = get_scene(args.scene)
+    # the reference judges the device under test (--device), so it never comes from it
+    ref_dev = trusted_device()
     out = Path(args.output)
     _stage(args, "creating", out)
     out.mkdir(parents=True, exist_ok=True)
@@ -529,7 +539,7 @@ def cmd_demo(args) -> int:
     stage_log(f"samples {w}x{h} at {args.spp} spp: {t_render:.2f} s")
     folder = reference_cache_dir()
     cache = None if folder is None else \
-        folder / _reference_cache_name(scene, w, h, ref_spp, args.seed + 1)
+        folder / _reference_cache_name(scene, w, h, ref_spp, args.seed + 1, ref_dev)
     t0 = time.perf_counter()
     ref = _load_cached_reference(cache, w, h)
     if ref is not None:
@@ -541,7 +551,7 @@ def cmd_demo(args) -> int:
         stage_log(f"reference {w}x{h} at {ref_spp} spp: rendering"
                   + ("" if cache is None else " (cached for the next run)"))
         ref = _with_bar("reference", render_reference, scene, w, h, ref_spp,
-                        seed=args.seed + 1, device=args.device)
+                        seed=args.seed + 1, device=ref_dev)
         t_ref = time.perf_counter() - t0
         stored = _store_cached_reference(cache, ref)
         ref_note = f"reference {ref_spp} spp in {t_ref:.1f} s" + (
@@ -552,6 +562,8 @@ def cmd_demo(args) -> int:
     save_image(out / f"{args.scene}_reference.png", ref)
     print(f"scene {args.scene} {w}x{h}: {args.spp} spp rendered in {t_render * 1e3:.0f} ms "
           f"({w * h * args.spp / t_render / 1e6:.1f} M samples/s); {ref_note}")
+    print(f"reference device: {ref_dev.info.label} (references never come from the device "
+          f"under test)")
     device = None
     for method in methods:
         _stage(args, f"running {method} on scene {args.scene}")
@@ -697,17 +709,70 @@ def cmd_trade(args) -> int:
     return 0
 
 
+class _IntsAction(argparse.Action):
+    """A list of ints given as ``4 8 16``, ``4,8,16`` or both mixed (``nargs="+"`` of
+    :func:`_int_list`): one flat list."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, [v for group in values for v in group])
+
+
+def _side_or_size(text: str) -> tuple[int, int]:
+    """``N`` (N x N) or ``WxH``."""
+    return _size(f"{text}x{text}" if text.strip().isdigit() else text)
+
+
+def cmd_converge(args) -> int:
+    from .bench.convergence import converge
+
+    for method in args.methods or []:
+        _check_knob_names(method, {}, "--methods: ")
+    _check_output_dir("-o", args.output)
+    _stage(args, "running the convergence study into", args.output)
+
+    def status(line: str) -> None:
+        print(f"clrecon converge: {line}", file=sys.stderr, flush=True)
+
+    rep = converge(args.scenes, args.methods, args.settings, spps=args.spp, size=args.size,
+                   seeds=args.seeds, out_dir=args.output, ref_spp=args.ref_spp,
+                   ablation_spp=args.ablation_spp, device=args.device, status=status,
+                   keep_images=args.keep_images)
+    print(rep["markdown"])
+    print(f"written: {args.output}/convergence.md, convergence.json, <scene>_convergence.png")
+    return 0
+
+
+def cmd_errcheck(args) -> int:
+    from .bench.error_check import check, markdown
+
+    for method in args.methods:
+        _check_knob_names(method, {}, "--methods: ")
+    _check_output_dir("-o", args.output)
+
+    def status(line: str) -> None:
+        print(f"clrecon errcheck: {line}", file=sys.stderr, flush=True)
+
+    rep = check(args.scenes, args.methods, size=args.size, spp=args.spp,
+                out_dir=args.output, device=args.device, status=status)
+    print(markdown(rep))
+    print(f"written: {args.output}/errcheck.md, errcheck.json")
+    return 0
+
+
 def cmd_bench(args) -> int:
-    from .bench.devices import bench, compare, write_outputs
+    from .bench.devices import bench, compare, plot_bandwidth, variant_list, write_outputs
 
     for label, method, knobs in args.variant or []:
         _check_knob_names(method, knobs, f"--variant {label}: ")
     for method in args.methods or []:
         _check_knob_names(method, {}, "--methods: ")
-    writes = {k: [str(v)] for k, v in (("--json", args.json), ("--csv", args.csv)) if v}
+    variants = variant_list((args.variant or []) + [(m, m, {}) for m in args.methods or []],
+                            only=args.only)
+    writes = {k: [str(v)] for k, v in (("--json", args.json), ("--csv", args.csv),
+                                       ("--plot", args.plot)) if v}
     _check_files({"--compare baseline": [str(args.compare)]} if args.compare else {}, writes)
     for opt, (path,) in writes.items():
-        _check_output(opt, path)
+        _check_output(opt, path, (".png",) if opt == "--plot" else None)
     old = None
     if args.compare:  # read first: a bad baseline fails before the measurements
         _stage(args, "reading the baseline", args.compare)
@@ -718,13 +783,15 @@ def cmd_bench(args) -> int:
     _stage(args, "measuring")
     bar = _Bar("bench", unit="step")
     try:
-        variants = (args.variant or []) + [(m, m, {}) for m in args.methods or []]
-        res = bench(args.devices, variants=variants or None, size=args.size, spp=args.spp,
-                    repeats=args.repeats, progress=bar, scene=args.scene)
+        res = bench(args.devices, variants=variants, size=args.size, spp=args.spp,
+                    repeats=args.repeats, progress=bar, scene=args.scene,
+                    peak=not args.no_peak, clpeak=args.clpeak)
     finally:
         bar.close()
     _stage(args, "writing the results")
     write_outputs(res, json_path=args.json, csv_path=args.csv)
+    if args.plot:
+        plot_bandwidth(res, args.plot)
     print(res["markdown"])
     if old is not None:
         print(f"Change against {args.compare}:")
@@ -752,18 +819,31 @@ def cmd_tune(args) -> int:
         for b in bars.values():
             b.close()
     print("| pass | bucket | default | default ms | best | best ms | speed-up | paired "
-          "default/best | configs ok / pruned / failed |")
+          "default/best | configs ok / pruned / failed / skipped (budget) |")
     print("|---|---|---|---|---|---|---|---|---|")
     for res, _ in results:
         st = [m.status for m in res.measurements]
         failed = sum(s in ("build_error", "run_error", "verify_failed") for s in st)
-        paired = "-" if res.confirm_ratio is None else f"{res.confirm_ratio:.2f}x"
+        paired = ("skipped (budget)" if res.confirm_skipped else
+                  "-" if res.confirm_ratio is None else f"{res.confirm_ratio:.2f}x")
         speed = (res.default_median_ms / res.best_median_ms
                  if res.best_median_ms and res.default_median_ms else float("nan"))
         print(f"| {res.pass_name} | {res.bucket} | {json.dumps(res.default)} | "
               f"{res.default_median_ms:.2f} | {json.dumps(res.best)} | {res.best_median_ms:.2f} | "
-              f"{speed:.2f}x | {paired} | {st.count('ok')} / {st.count('pruned')} / {failed} |")
-    print(f"written: {', '.join(sorted({p for _, p in results}))}")
+              f"{speed:.2f}x | {paired} | {st.count('ok')} / {st.count('pruned')} / {failed} / "
+              f"{st.count('skipped_budget')} |")
+    skipped = [(res.pass_name, m) for res, _ in results for m in res.skipped]
+    if skipped:
+        print(f"\nSkipped for the budget ({len(skipped)} configurations):")
+        for name, m in skipped:
+            print(f"- {name} {json.dumps(m.config)}: {m.error}")
+    if results.skipped:
+        print(f"\nPasses not tuned for the budget ({len(results.skipped)}):")
+        for name, why in results.skipped:
+            print(f"- {name}: {why}")
+    print(f"\nelapsed {results.elapsed_s:.1f} s of the {results.budget_s:g} s budget")
+    written = sorted({p for _, p in results})
+    print(f"written: {', '.join(written) if written else 'nothing'}")
     return 0
 
 
@@ -842,6 +922,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--pyramid", choices=("f5", "f7"), help="splat: integration filter set")
     sp.add_argument("--dense", action="store_true",
                     help="splat: splat the dense PSF (the paper's Splatting baseline)")
+    sp.add_argument("--safeguard", action=argparse.BooleanOptionalAction, default=None,
+                    help="blend toward box where the method's estimated bias dominates "
+                         "(default: on for every method but box at >= 2 spp); "
+                         "--no-safeguard: the paper's method alone")
+    sp.add_argument("--error", metavar="PATH",
+                    help="also write the per-pixel squared-error estimate (.exr, one channel "
+                         "repeated in RGB; linear radiance, mean over RGB)")
     sp.add_argument("--json", action="store_true", help="print one JSON object")
     dev(sp)
     sp.add_argument("--allow-negative", action="store_true",
@@ -877,7 +964,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("tune", help="autotune every pass's launch configuration on a device")
     sp.add_argument("--passes", nargs="*", default=None, help="default: every tunable pass")
-    sp.add_argument("--budget", type=float, default=600.0, help="seconds for all passes")
+    sp.add_argument("--budget", type=float, default=600.0,
+                    help="seconds for all passes, a cap: a configuration or pass predicted "
+                    "not to fit is skipped and listed")
     sp.add_argument("--size", type=_size, default=(640, 360), help="tuned frame size WxH")
     sp.add_argument("--spp", type=int, default=16, help="samples per pixel of the tuned frame")
     sp.add_argument("--runs", type=int, default=7, help="timed runs per configuration, at least 7")
@@ -916,8 +1005,9 @@ def build_parser() -> argparse.ArgumentParser:
                     metavar="S,...", help="built-in scenes (default: all)")
     sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
                     metavar="M,...", help="methods (default: all registered; box always runs)")
-    sp.add_argument("--spp", type=_int_list, default=[4, 8, 16], metavar="N,...",
-                    help="samples per pixel of the measured buffers")
+    sp.add_argument("--spp", type=_int_list, nargs="+", action=_IntsAction, default=[4, 8, 16],
+                    metavar="N", help="samples per pixel of the measured buffers (N N ... or "
+                    "N,N,...)")
     sp.add_argument("--size", type=_size, default=(512, 512), help="WxH")
     sp.add_argument("--repeats", type=int, default=5, help="paired rounds after a warm-up")
     sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
@@ -929,6 +1019,46 @@ def build_parser() -> argparse.ArgumentParser:
     dev(sp)
     sp.set_defaults(fn=cmd_trade)
 
+    sp = sub.add_parser("errcheck", help="how well the per-pixel error estimate ranks the "
+                        "true error: Spearman over 8x8 tiles, per scene and method")
+    sp.add_argument("--scenes", type=lambda t: [s for s in t.split(",") if s],
+                    default=["fence", "deep", "fast_motion"], metavar="S,...")
+    sp.add_argument("--methods", type=lambda t: [s for s in t.split(",") if s],
+                    default=["box", "sweep", "layered", "splat"], metavar="M,...")
+    sp.add_argument("--size", type=_size, default=(512, 512), help="WxH")
+    sp.add_argument("--spp", type=int, default=8)
+    sp.add_argument("-o", "--output", default="out/errcheck")
+    dev(sp)
+    sp.set_defaults(fn=cmd_errcheck)
+
+    sp = sub.add_parser("converge", help="convergence study: MSE split into bias² and variance "
+                        "against spp for every method's settings, log-log plots, an ablation")
+    sp.add_argument("--scenes", type=lambda t: [s for s in t.split(",") if s], default=None,
+                    metavar="S,...", help="built-in scenes (default: every one with blur)")
+    sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
+                    metavar="M,...", help="methods (default: all registered; box always runs)")
+    sp.add_argument("--settings", type=lambda t: [m.strip() for m in t.split(",") if m.strip()],
+                    default=None, metavar="LABEL,...",
+                    help="only these settings (labels of the study; a method's name: its "
+                    "defaults; box always runs; default: every default and trade setting)")
+    sp.add_argument("--size", type=_side_or_size, default=(256, 256),
+                    help="N or WxH (default: 256x256)")
+    sp.add_argument("--spp", type=_int_list, nargs="+", action=_IntsAction,
+                    default=[4, 8, 16, 32, 64, 128], metavar="N",
+                    help="samples per pixel (N N ... or N,N,...)")
+    sp.add_argument("--seeds", type=int, default=4,
+                    help="independent sample seeds per cell (at least 2)")
+    sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
+    sp.add_argument("--ablation-spp", type=int, default=64,
+                    help="spp of the ablation of bias sources (0: none)")
+    sp.add_argument("--keep-images", action="store_true",
+                    help="keep every cell's image in the cache (default: removed once its "
+                    "seeds are summarised)")
+    sp.add_argument("-o", "--output", default="out/converge",
+                    help="output folder (references and the resume cache inside it)")
+    dev(sp)
+    sp.set_defaults(fn=cmd_converge)
+
     sp = sub.add_parser("bench", help="per-pass device times on every device, tuned vs default")
     sp.add_argument("--devices", type=_device_list, default="all", metavar="all|D,...",
                     help="comma-separated device indices or name substrings, as --device "
@@ -937,11 +1067,19 @@ def build_parser() -> argparse.ArgumentParser:
                     default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     sp.add_argument("--variant", action="append", type=_variant, default=None,
                     metavar="SPEC",
-                    help="[LABEL=]METHOD[:K=V,...] (repeatable; default: box, sweep 2-scale, "
-                         "sweep dof-layers)")
+                    help="[LABEL=]METHOD[:K=V,...], run after the default variants (box, "
+                         "sweep 2-scale, sweep dof-layers) (repeatable; default: none)")
     sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
-                    metavar="M,...", help="methods with their default knobs (adds to "
-                    "--variant; default: none)")
+                    metavar="M,...", help="methods with their default knobs, run after the "
+                    "default variants and --variant (default: none)")
+    sp.add_argument("--only", action="store_true",
+                    help="run only the --variant and --methods given, not the default variants")
+    sp.add_argument("--no-peak", action="store_true",
+                    help="skip measuring each device's streaming peak (copy kernel, ~1 s a "
+                    "device); fractions of peak are then n/a")
+    sp.add_argument("--clpeak", action="store_true",
+                    help="also run clpeak's global-memory bandwidth test on each device, when "
+                    "clpeak is installed (~30 s a device)")
     sp.add_argument("--scene", default=None,
                     help="built-in scene to render as input (default: a synthetic frame)")
     sp.add_argument("--size", type=_size, default=(1280, 720), help="WxH")
@@ -953,6 +1091,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write the long rows as CSV (default: not written)")
     sp.add_argument("--compare", default=None, metavar="OLD.json",
                     help="print the change against an earlier --json result (default: none)")
+    sp.add_argument("--plot", default=None, metavar="F.png",
+                    help="plot each pass's GB/s against each device's peak (default: none)")
     sp.set_defaults(fn=cmd_bench)
 
     sp = sub.add_parser("psf", help="splat: pre-compute a PSF model's spreadlet table")

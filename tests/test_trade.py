@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import trusted_reference
 
 from clrecon.bench.trade import TRADES, pareto_front, trade, trade_variants
 from clrecon.cli import main
@@ -62,13 +63,12 @@ def test_trade_cli_rejects_bad_input(tmp_path, capsys):
 def test_trade_on_the_users_own_frames(device, tmp_path):
     """A user's sample file and reference image run like a scene named after the file."""
     from clrecon.io import save_image, save_samples
-    from clrecon.scenes import get_scene, render_reference, render_samples
+    from clrecon.scenes import get_scene, render_samples
 
     scene = get_scene("spheres")
     save_samples(str(tmp_path / "shot_0042.bin"),
                  render_samples(scene, 32, 24, 3, seed=5, device=device))
-    save_image(str(tmp_path / "shot_0042_ref.exr"),
-               render_reference(scene, 32, 24, 64, seed=1, device=device))
+    save_image(str(tmp_path / "shot_0042_ref.exr"), trusted_reference(scene, 32, 24, 64, seed=1))
     rep = trade(methods=["sweep"], repeats=1, oidn=False, device=device,
                 out_dir=tmp_path / "out",
                 inputs=[(tmp_path / "shot_0042.bin", tmp_path / "shot_0042_ref.exr")])
@@ -81,3 +81,22 @@ def test_trade_on_the_users_own_frames(device, tmp_path):
         save_image(str(tmp_path / "small.exr"), np.zeros((4, 4, 3), np.float32))
         trade(methods=["sweep"], repeats=1, oidn=False, device=device, out_dir=tmp_path,
               inputs=[(tmp_path / "shot_0042.bin", tmp_path / "small.exr")])
+
+
+def test_trade_spp_takes_spaces_and_commas():
+    from clrecon.cli import build_parser
+
+    p = build_parser()
+    assert p.parse_args(["trade", "--spp", "32", "64"]).spp == [32, 64]
+    assert p.parse_args(["trade", "--spp", "4,8", "64"]).spp == [4, 8, 64]
+    assert p.parse_args(["trade"]).spp == [4, 8, 16]
+
+
+def test_trade_cli_at_32_and_64_spp(tmp_path, capsys):
+    """``clrecon trade --spp 32 64`` runs (the space-separated list was refused before)."""
+    assert main(["trade", "--scenes", "fence", "--methods", "box", "--spp", "32", "64",
+                 "--size", "16x12", "--repeats", "1", "--no-oidn", "--ref-spp", "32",
+                 "-o", str(tmp_path)]) == 0
+    rep = json.loads((tmp_path / "trade.json").read_text())
+    assert rep["spps"] == [32, 64]
+    assert sorted({r["spp"] for r in rep["rows"]}) == [32, 64]
