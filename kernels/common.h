@@ -57,7 +57,9 @@ inline void atomic_add_f32(volatile __global float *addr, float val)
                               memory_order_relaxed, memory_scope_device);
 #else
     union { uint u; float f; } expected, next, seen;
-    seen.f = *addr;
+    /* the first guess is read atomically too: a plain load racing with other work-items'
+     * compare-and-swap is a data race in OpenCL's memory model (Oclgrind reports it) */
+    seen.u = atomic_add((volatile __global uint *)addr, 0u);
     do {
         expected.u = seen.u;
         next.f = expected.f + val;
