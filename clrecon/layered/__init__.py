@@ -92,6 +92,7 @@ import math
 
 import pyopencl as cl
 
+from ..fixed import BOUND_BYTES
 from ..knobs import check_bool, check_choice, check_float, check_int
 from ..pipeline import DeviceSamples, LocalSize, Pipeline, register
 from ..plan import Bound, Plan, Step, coc_bound, motion_bound, shape_bounds
@@ -101,7 +102,7 @@ from .filter_rotated import FilterRotated
 from .filter_sheared import FilterSheared
 from .partition_setup import PartitionSetup
 from .reference import NCH, NPAR, NSTAT, Layout, bucket_params, mip_levels, subsample_cap
-from .reproject import BOUND_BYTES, Reproject
+from .reproject import Reproject
 from .tile_stats import TileStats
 
 MODES = ("practical", "lrdm")

@@ -4,14 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from ..fixed import enqueue_color_bound
 from ..pipeline import DeviceSamples, LocalSize
 from .passes import layered_kernel
 from .reference import Layout, subsample_cap
-
-#: ``fixed``: the colour bound (max |r|, |g|, |b| as uint bits, one word of padding) and the
-#: work-items of its reduction (a multiple of 3: one channel per item)
-BOUND_BYTES = 16
-BOUND_ITEMS = 3 * 1024
 
 
 class Reproject:
@@ -56,11 +52,8 @@ class Reproject:
                 raise ValueError("fixed: the pass needs the fixed-point grids and the colour "
                                  "bound buffer")
             n = samples.width * samples.height * samples.spp
-            clear = cl.enqueue_fill_buffer(queue, bound, np.uint32(0), 0, BOUND_BYTES,
-                                           wait_for=wait_for)
-            self.bound_kernel.set_args(samples["color"], np.int32(n), bound)
-            ev = cl.enqueue_nd_range_kernel(queue, self.bound_kernel, (BOUND_ITEMS,), None,
-                                            wait_for=[clear])
+            clear, ev = enqueue_color_bound(queue, self.bound_kernel, samples["color"], n,
+                                            bound, wait_for)
             self.events += [("clear", clear), ("reproject_color_bound", ev)]
             wait_for = [ev]
             args += [fixed, bound]

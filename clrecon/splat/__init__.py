@@ -52,6 +52,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..box import Box, box_plan
+from ..fixed import BOUND_BYTES
 from ..knobs import check_bool, check_choice, check_float, check_int
 from ..pipeline import Pipeline, register
 from ..plan import Bound, Plan, Step, coc_bound, motion_bound, shape_bounds
@@ -62,7 +63,7 @@ from .composite import Composite
 from .integrate import Integrate
 from .psf import MODELS
 from .reference import PYRAMIDS
-from .splat import BOUND_BYTES, SCATTERS, Splat
+from .splat import SCATTERS, Splat
 from .tables import DeviceTable, host_table
 
 log = logging.getLogger(__name__)

@@ -18,16 +18,12 @@ import numpy as np
 import pyopencl as cl
 
 from ..device import get_kernel
+from ..fixed import enqueue_color_bound
 from ..pipeline import DeviceSamples
 from .tables import DeviceTable
 
 SCATTERS = ("atomic", "tiles")
 MIN_TILE = 16
-#: the colour bound of ``fixed``: max |r|, |g|, |b| as uint bits (and one word of padding)
-BOUND_BYTES = 16
-#: work-items of the colour-bound reduction (a multiple of 3: one channel per item); few
-#: enough that its 3072 atomic maxima cost nothing, enough to spread the reads
-BOUND_ITEMS = 3 * 1024
 
 
 class Splat:
@@ -124,11 +120,8 @@ class Splat:
         scale of the fixed-point images. ``self.events`` then holds the clear and the
         reduction."""
         n = samples.width * samples.height * samples.spp
-        clear = cl.enqueue_fill_buffer(queue, bound, np.uint32(0), 0, BOUND_BYTES,
-                                       wait_for=wait_for)
-        self.bound_kernel.set_args(samples["color"], np.int32(n), bound)
-        ev = cl.enqueue_nd_range_kernel(queue, self.bound_kernel, (BOUND_ITEMS,), None,
-                                        wait_for=[clear])
+        clear, ev = enqueue_color_bound(queue, self.bound_kernel, samples["color"], n, bound,
+                                        wait_for)
         self.events = [clear, ev]
         return ev
 
