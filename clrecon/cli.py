@@ -423,7 +423,7 @@ def cmd_psf(args) -> int:
 #: argparse destinations of ``reconstruct`` that are method knobs of the same name
 METHOD_FLAGS = ("scales", "dof_layers", "exponent", "sort", "tile", "group",
                 "mode", "filter", "stats_stride", "merge_threshold",  # layered
-                "psf", "layers", "pyramid", "dense")  # splat
+                "psf", "layers", "pyramid", "dense", "mip_radius")  # splat
 
 
 def cmd_compare(args) -> int:
@@ -922,6 +922,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--pyramid", choices=("f5", "f7"), help="splat: integration filter set")
     sp.add_argument("--dense", action="store_true",
                     help="splat: splat the dense PSF (the paper's Splatting baseline)")
+    sp.add_argument("--mip-radius", type=float, metavar="R",
+                    help="splat: draw each PSF on the pyramid level where its radius is <= R "
+                         "level pixels (default 8; 0: the paper's spreadlets at full "
+                         "resolution)")
     sp.add_argument("--safeguard", action=argparse.BooleanOptionalAction, default=None,
                     help="blend toward box where the method's estimated bias dominates "
                          "(default: on for every method but box at >= 2 spp); "

@@ -97,7 +97,7 @@ def test_language_options_of_a_device(device):
 # -- splat -----------------------------------------------------------------------------------
 def _splat(device, buf, runs=RUNS, **knobs):
     """Images of ``runs`` runs of one pipeline: (final images, lap, direct) per run."""
-    pipe = SplatPipeline(device.context, buf.inspect(), **knobs)
+    pipe = SplatPipeline(device.context, buf.inspect(), **{"mip_radius": 0, **knobs})
     q = device.queue
     samples = DeviceSamples.upload(q, buf, pipe.fields)
     shape = (pipe.layers, *pipe.shape, 4)
@@ -161,8 +161,10 @@ def test_splat_plan_lists_the_fixed_point_buffers(device, rng):
         pytest.skip("device lacks cl_khr_int64_base_atomics")
     buf = crowded(rng, h=8, w=9, s=4)
     info = buf.inspect()
-    plain = SplatPipeline(device.context, info, scatter="atomic", max_error=float("inf"))
+    plain = SplatPipeline(device.context, info, scatter="atomic", max_error=float("inf"),
+                          mip_radius=0)
     pipe = SplatPipeline(device.context, info, scatter="atomic", max_error=float("inf"),
+                         mip_radius=0,
                          deterministic=True)
     t0, t = plain.plan.temporaries, pipe.plan.temporaries
     assert t["direct_fixed"] == 2 * t0["direct"] and t["lap_fixed"] == 2 * t0["lap"]

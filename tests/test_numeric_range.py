@@ -387,7 +387,7 @@ _SPLAT_HOST = textwrap.dedent("""
     for motion in (3.5e37, 1e12, float("inf")):
         for scatter in ("tiles", "atomic"):
             info = dataclasses.replace(buf.inspect(), max_abs_motion=motion)
-            pipe = make_pipeline("splat", dev.context, info, scatter=scatter)
+            pipe = make_pipeline("splat", dev.context, info, scatter=scatter, mip_radius=0)
             s = DeviceSamples.upload(dev.queue, buf, info=buf.inspect())
             o = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
             img = np.empty((buf.height, buf.width, 3), np.float32)

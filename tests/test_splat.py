@@ -15,7 +15,8 @@ from clrecon.splat import reference as ref
 
 
 def reference_method(device, buf, **knobs):
-    pipe = make_pipeline("splat", device.context, buf.inspect(), **knobs, safeguard=False)
+    pipe = make_pipeline("splat", device.context, buf.inspect(), **knobs, safeguard=False,
+                         mip_radius=0)
     t = pipe.table
     inv_near = pipe.inv_far + pipe.layers / pipe.layer_scale if pipe.layer_scale else pipe.inv_far
     lap, direct = ref.splat(buf, t.as_tuple(), t.model.cell_of, pipe.layers,
@@ -35,7 +36,7 @@ def reference_method(device, buf, **knobs):
 ], ids=["auto-static", "f7", "combined", "dense"])
 def test_method_matches_chained_references(device, rng, knobs, motion):
     buf = frame(rng, h=12, w=10, s=2, motion=motion)
-    got = clrecon.reconstruct(buf, "splat", device, **knobs, safeguard=False)
+    got = clrecon.reconstruct(buf, "splat", device, **knobs, safeguard=False, mip_radius=0)
     want = reference_method(device, buf, **knobs)
     assert_close(got, want, rtol=2e-3, atol=2e-3 * float(want.max()), what=f"splat {knobs}")
 
@@ -149,7 +150,7 @@ def test_fast_track_only_frame_skips_the_integration(device, rng):
     """Defocus of at most ~1 px: every cell is drawn densely, no Laplacian is integrated,
     and the result still matches the chained references."""
     buf = frame(rng, h=10, w=12, s=4, motion=False, aperture=0.6)
-    res = run(buf, "splat", device, safeguard=False)
+    res = run(buf, "splat", device, safeguard=False, mip_radius=0)
     assert res.method["plan"] == "splat" and res.method["integrate"] is False
     assert "integrate" not in res.pass_ms
     want = reference_method(device, buf)
@@ -177,12 +178,14 @@ def test_cells_with_large_spreadlet_error_are_drawn_densely(device, rng):
     draws such cells densely: the result then follows the dense baseline."""
     buf = _step_frame(rng)
     dense = clrecon.reconstruct(buf, "splat", device, psf="combined", dense=True, safeguard=False)
-    fixed = make_pipeline("splat", device.context, buf.inspect(), psf="combined", safeguard=False)
+    fixed = make_pipeline("splat", device.context, buf.inspect(), psf="combined",
+                          safeguard=False, mip_radius=0)
     cell = fixed.table.model.cell_of(np.array([[2.0, 60.0]]))
     assert fixed.table.fast[int(np.ravel(cell)[0])], "the 0.23-error cell is on the fast track"
     err = {}
     for label, knobs in (("default", {}), ("never", {"max_error": float("inf")})):
-        img = clrecon.reconstruct(buf, "splat", device, psf="combined", **knobs, safeguard=False)
+        img = clrecon.reconstruct(buf, "splat", device, psf="combined", **knobs,
+                                  safeguard=False, mip_radius=0)
         err[label] = float(np.abs(img - dense).max())
     # on this single-layer step the sparse cell is off by ~3% of the step (0.027 measured);
     # with several layers the coverage error also moves the compositing (deep: 10 dB)
@@ -195,16 +198,16 @@ def test_blur_beyond_the_table(device, rng, caplog):
     (describe() says so); a CoC beyond SimpleLens's 128 px is clamped, with a warning."""
     buf = frame(rng, h=8, w=9, s=2, motion=False, aperture=2.0)
     buf.motion[..., 0] = 280.0
-    d = make_pipeline("splat", device.context, buf.inspect(), psf="combined",
+    d = make_pipeline("splat", device.context, buf.inspect(), mip_radius=0, psf="combined",
                       safeguard=False).describe()
     assert d["motion_split"] == 2 and d["clamped"] == {}
     buf.motion[..., 0] = 100.0
-    d = make_pipeline("splat", device.context, buf.inspect(), psf="combined",
+    d = make_pipeline("splat", device.context, buf.inspect(), mip_radius=0, psf="combined",
                       safeguard=False).describe()
     assert d["motion_split"] == 1
     big = frame(rng, h=8, w=9, s=2, motion=False, aperture=300.0)
     with caplog.at_level("WARNING", logger="clrecon.splat"):
-        d = make_pipeline("splat", device.context, big.inspect(), psf="simplelens",
+        d = make_pipeline("splat", device.context, big.inspect(), mip_radius=0, psf="simplelens",
                           safeguard=False).describe()
     assert d["clamped"]["coc"]["table_max_px"] == 128.0
     assert "the largest PSF stands in" in caplog.text

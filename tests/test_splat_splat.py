@@ -13,7 +13,8 @@ from clrecon.splat import reference as ref
 
 
 def run_splat(device, buf, **knobs):
-    pipe = make_pipeline("splat", device.context, buf.inspect(), **knobs, safeguard=False)
+    pipe = make_pipeline("splat", device.context, buf.inspect(), **knobs, safeguard=False,
+                         mip_radius=0)
     q = device.queue
     samples = DeviceSamples.upload(q, buf, pipe.fields)
     size = pipe.layers * pipe.shape[0] * pipe.shape[1] * 16
@@ -92,8 +93,8 @@ def test_owner_tiles_cover_every_sample_once(device, rng, phases):
     """Many owner tiles per phase (small PSFs on a 160x48 frame): every sample drawn once."""
     buf = frame(rng, h=48, w=160, s=1, motion=False, aperture=2.0)
     # max_error=inf: keep the small discs' spreadlets (errors > 0.05) off the fast track
-    pipe = make_pipeline("splat", device.context, buf.inspect(), psf="simplelens", layers=2,
-                         scatter="tiles", max_error=float("inf"), safeguard=False)
+    pipe = make_pipeline("splat", device.context, buf.inspect(), mip_radius=0, psf="simplelens",
+                         layers=2, scatter="tiles", max_error=float("inf"), safeguard=False)
     assert pipe.use_lap, "spreadlets must be exercised"
     pipe.splat.phases = phases
     tile = pipe.splat.tile_size(pipe.reach, pipe.shift, phases)

@@ -61,6 +61,7 @@ from ..tune.runtime import tuned
 from ..tune.specs import local_size_of
 from .composite import Composite
 from .integrate import Integrate
+from .mip import MAX_RADIUS, MIN_RADIUS, MipGeometry, MipSplat
 from .psf import MODELS
 from .reference import PYRAMIDS
 from .splat import SCATTERS, Splat
@@ -70,6 +71,10 @@ log = logging.getLogger(__name__)
 PSF_MODELS = tuple(MODELS)
 #: default ``max_error``: spreadlet L1 error above which a cell is drawn densely
 MAX_ERROR = 0.05
+#: default ``mip_radius`` (the mip plan, :mod:`clrecon.splat.mip`); 0: the paper's
+#: plan. Chosen on cost (~R0^2 per bin) against sharpness, not per scene (the trade 4 / 6 /
+#: 8 / 12 on every built-in scene: docs/measurements/splat-mip-pocl.md)
+MIP_RADIUS = 8.0
 #: the longest motion the host arithmetic takes from a frame description (validated frames
 #: stay below MOTION_MAX * sqrt(2); beyond this the count of sub-segments is clamped)
 _HOST_MOTION_LIMIT = 2.0**31
@@ -91,7 +96,7 @@ class SplatPipeline(Pipeline):
     def __init__(self, context, info, psf: str | None = None, layers: int = 4,
                  pyramid: str = "f7", dense: bool = False, fast_ratio: float = 1.0,
                  max_error: float = MAX_ERROR, scatter: str | None = None,
-                 deterministic: bool = False):
+                 deterministic: bool = False, mip_radius: float | None = None):
         super().__init__(context, info)
         psf = check_choice("psf", psf, sorted(MODELS), none_ok=True)
         pyramid = check_choice("pyramid", pyramid, sorted(PYRAMIDS))
@@ -102,6 +107,20 @@ class SplatPipeline(Pipeline):
                                 what="(inf: never drawn densely for its error)")
         scatter = check_choice("scatter", scatter, SCATTERS, none_ok=True)
         self.deterministic = check_bool("deterministic", deterministic)
+        # None: the mip plan unless the knobs ask for the paper's (dense, the hexagon)
+        self.mip_source = "api" if mip_radius is not None else "default"
+        if mip_radius is None:
+            mip_radius = 0.0 if dense is True or psf == "stylized" else MIP_RADIUS
+        if not isinstance(mip_radius, (bool, np.bool_)) and mip_radius == 0:
+            mip_radius = None
+        self.mip_radius = None if mip_radius is None else check_float(
+            "mip_radius", mip_radius, MIN_RADIUS, MAX_RADIUS,
+            what="(0: the paper's spreadlets at full resolution; None: 8, or 0 with "
+                 "dense=True or psf='stylized')")
+        if self.mip_radius is not None and (psf == "stylized" or dense):
+            raise ValueError("mip_radius: the mip plan draws discs and swept discs (psf "
+                             "'simplelens' or 'combined', dense=False); "
+                             f"psf={psf!r}, dense={dense} needs mip_radius=None")
         self.psf = psf or ("combined" if info.has_motion else "simplelens")
         self.psf_source = "api" if psf else "inspect"
         self.dense, self.fast_ratio = bool(dense), float(fast_ratio)
@@ -159,9 +178,6 @@ class SplatPipeline(Pipeline):
             self.box = Box(context, local_size_of(found.config))
             self.set_plan(box_plan("splat", self.box, info, bounds))
             return
-        ph, pw = info.height + 2 * self.pad, info.width + 2 * self.pad
-        self.shape = (ph, pw)
-        self.device_table = DeviceTable(context, self.table)
 
         def config(pass_name):
             found = tuned(context, pass_name, info)
@@ -173,10 +189,17 @@ class SplatPipeline(Pipeline):
         if scatter is None:  # CAS float atomics cost ~10 plain adds on CPUs
             cpu = bool(context.devices[0].type & cl.device_type.CPU)
             scatter = "tiles" if cpu or (self.deterministic and not int64) else "atomic"
-        elif self.deterministic and scatter == "atomic" and not int64:
+        elif self.deterministic and scatter == "atomic" and not int64 \
+                and self.mip_radius is None:
             raise ValueError("deterministic: scatter='atomic' accumulates in int64 fixed point, "
                              "which needs cl_khr_int64_base_atomics; the device lacks it "
                              "(scatter='tiles' is deterministic as it is)")
+        if self.mip_radius is not None:
+            self._init_mip(context, info, scatter, config, bounds)
+            return
+        ph, pw = info.height + 2 * self.pad, info.width + 2 * self.pad
+        self.shape = (ph, pw)
+        self.device_table = DeviceTable(context, self.table)
         self.fixed = self.deterministic and scatter == "atomic"
         self.klog2 = self._fixed_klog2(info) if self.fixed else 0
         cfg = config("splat")
@@ -189,6 +212,68 @@ class SplatPipeline(Pipeline):
             config("integrate"))) if self.use_lap else None
         self.set_plan(self._plan(info, shape_bounds(info, "kernels compiled for this spp")
                                  + tuple(bounds)))
+
+    def _init_mip(self, context, info, scatter, config, bounds) -> None:
+        """The mip plan (:mod:`clrecon.splat.mip`): clear -> bin -> draw -> upsample ->
+        splat_composite. ``deterministic=True`` takes the owner tiles (plain adds in a fixed
+        order), the float atomics are not reproducible."""
+        if self.deterministic and scatter == "atomic":
+            scatter = "tiles"
+        self.plan_name, self.use_lap, self.clamped = "mip", False, {}
+        motion = info.max_abs_motion if self.psf == "combined" else 0.0
+        self.geometry = geo = MipGeometry(info.width, info.height, self.layers,
+                                          self.mip_radius, info.max_abs_coc, motion)
+        if geo.clamped:
+            self.clamped["mip_levels"] = {"levels": geo.nlev}
+            log.warning("splat: the frame's blur exceeds %d mip levels; the largest PSF "
+                        "stands in for larger blur", geo.nlev)
+        self.pad = geo.pad
+        self.mip = MipSplat(context, info.spp, self.has_motion and self.psf == "combined",
+                            geo, scatter)
+        self.composite = Composite(context, self.layers, False,
+                                   local_size_of(config("splat_composite")))
+        temps = {"mip_image": geo.image_bytes, "mip_bins": geo.bin_bytes,
+                 "ring": self.layers * 16}
+        if self.mip.scatter == "tiles":
+            ib, rb = self.mip.record_bytes()
+            temps |= {"mip_index": ib, "mip_records": rb}
+
+        def clear(queue, f, wait):
+            return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
+                                                     temps[k], wait_for=wait))
+                    for k in ("mip_image", "mip_bins")]
+
+        def bin_(queue, f, wait):
+            inv_far, scale = _layer_params(f.info, self.layers)
+            b = f.buffers
+            records = (b["mip_index"], b["mip_records"]) if "mip_index" in b else None
+            self.mip.bin(queue, f.samples, inv_far, scale, b["mip_bins"], wait, records)
+            return self.mip.events
+
+        def draw(queue, f, wait):
+            self.mip.draw(queue, f.buffers["mip_bins"], f.buffers["mip_image"], wait)
+            return self.mip.events
+
+        def upsample(queue, f, wait):
+            self.mip.upsample(queue, f.buffers["mip_image"], wait)
+            return self.mip.events
+
+        def composite(queue, f, wait):
+            b = f.buffers
+            return [("splat_composite", self.composite(
+                queue, b["mip_image"], b["mip_image"], b["ring"], f.width, f.height,
+                geo.pad, b["out"], wait, color=b["color"], spp=f.spp))]
+
+        steps = [Step("clear", (), ("mip_image", "mip_bins"), clear),
+                 Step("bin", tuple(FIELDS), ("mip_bins",) + tuple(
+                     k for k in ("mip_index", "mip_records") if k in temps), bin_),
+                 Step("draw", ("mip_bins",), ("mip_image",), draw)]
+        if geo.nlev > 1:
+            steps.append(Step("upsample", ("mip_image",), ("mip_image",), upsample))
+        steps.append(Step("splat_composite", ("mip_image", "color"), ("out",), composite))
+        bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
+        self.set_plan(Plan("splat", "splat", tuple(FIELDS), tuple(steps), temps,
+                           tuple(bounds)))
 
     def _fixed_klog2(self, info) -> int:
         """``deterministic``: ``klog2`` with ``2**klog2`` >= the sum of ``|weight * value|``
@@ -298,6 +383,17 @@ class SplatPipeline(Pipeline):
                     "psf_source": self.psf_source, "has_motion": False, "layers": 1,
                     "integrate": False, "deterministic": self.deterministic,
                     "accumulation": "box", "tuning": self.tuning}
+        if self.plan_name == "mip":
+            g = self.geometry
+            return {"method": "splat", "plan": "mip", "psf": self.psf,
+                    "psf_source": self.psf_source, "mode": "mip", "layers": self.layers,
+                    "mip_radius": g.r0, "mip_motion": g.m0, "levels": g.nlev, "pad": g.pad,
+                    "reach": g.reach, "integrate": False, "has_motion": self.has_motion,
+                    "clamped": self.clamped, "scatter": self.mip.scatter,
+                    "deterministic": self.deterministic,
+                    "accumulation": ("owner tiles" if self.mip.scatter == "tiles"
+                                     else "float atomics"),
+                    "bounds": [b.describe() for b in self.plan.bounds], "tuning": self.tuning}
         return {"method": "splat", "plan": self.plan.name, "psf": self.psf,
                 "psf_source": self.psf_source,
                 "mode": "dense" if self.dense else "sparse", "layers": self.layers,

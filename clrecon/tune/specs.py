@@ -407,6 +407,7 @@ def _splat_frame_pipeline(dev, w, h, spp):
     buf = synthetic_frame(w, h, spp)
     s = DeviceSamples.upload(dev.queue, buf)
     return make_pipeline("splat", dev.context, buf.inspect(), psf="combined", layers=2,
+                         mip_radius=0,
                          safeguard=False), s
 
 

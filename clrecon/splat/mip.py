@@ -1,0 +1,194 @@
+"""Method ``splat``'s mip plan (``mip_radius``): the PSFs drawn on a pyramid, so that the cost
+per sample does not grow with the blur (``kernels/splat_mip.cl``).
+
+Why not the paper's spreadlets: a PSF's Laplacian is non-zero along its outline, so the
+spreadlets of a disc grow with its perimeter (231 for a disc of radius 15, 3,149 for a
+defocused 100-px motion streak in the Combined table), and the cells whose sparse error is
+large are drawn densely, whose cost grows with the area. On ``deep`` at 1280x720 that is ~400
+adds per sample. Here a sample goes to the level ``l`` of the pyramid (level pixel ``2^l``
+frame pixels) where its CoC radius is at most ``R0 = mip_radius`` and its motion at most
+``M0 = 4 R0`` level pixels; samples of one layer that land in one level pixel are merged into
+a bin (weighted sums of colour, radius, motion and position); every non-empty bin draws one
+analytic PSF (disc or swept disc) of its mean radius and motion at its centroid; the levels
+are then upsampled into level 0 and composited as the dense layers are. The cost per sample
+is one bin add; the cost per bin at most ``(2 R0 + M0 + 3)^2`` pixels, and the bins of a
+level are ``1 / 4^l`` of the pixels, so a frame's time is flat in its blur.
+
+What it trades: a PSF at level ``l`` is resolved to ``2^l`` pixels (the bin and the bilinear
+upsampling blur its outline by about one level pixel, i.e. ``1/R0`` to ``2/R0`` of its
+radius); samples of one bin share one PSF (their mean radius and motion: mixed only where a
+layer holds a depth or motion edge inside one level pixel). ``mip_radius`` is the knob:
+larger is sharper and slower (cost ~ ``R0^2`` per bin).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyopencl as cl
+
+from ..device import get_kernel
+from ..pipeline import DeviceSamples
+from .splat import Splat
+
+#: motion length per level, in multiples of the radius: M0 = MOTION_RATIO * R0
+MOTION_RATIO = 4.0
+#: at most this many levels (2^15 px level pixels: beyond any frame's blur)
+MAX_LEVELS = 16
+#: knob range of mip_radius (level pixels)
+MIN_RADIUS, MAX_RADIUS = 1.0, 32.0
+PHASES = 4
+
+
+class MipGeometry:
+    """Sizes of the mip plan for a frame of ``width x height`` whose largest |CoC| and
+    |motion| are ``max_coc`` and ``max_motion`` (pixels)."""
+
+    def __init__(self, width: int, height: int, layers: int, radius: float, max_coc: float,
+                 max_motion: float):
+        self.width, self.height, self.layers = int(width), int(height), int(layers)
+        self.r0 = float(radius)
+        self.m0 = MOTION_RATIO * self.r0
+        span = self.r0 + 0.5 * self.m0
+        self.reach = int(math.ceil(span)) + 2
+        self.pad = self.reach + int(math.ceil(span)) + 2
+        need = max(max_coc / self.r0, max_motion / self.m0, 1.0)
+        top = int(math.ceil(math.log2(min(need, 2.0**40)) - 1e-6))
+        self.nlev = min(max(top, 0) + 1, MAX_LEVELS)
+        self.clamped = top + 1 > MAX_LEVELS
+        s = 2 ** (self.nlev - 1)
+        # how far a bin can lie from its sample's pixel (frame pixels): the re-centring
+        # (clamped at the top level) plus one level pixel of rounding
+        self.shift = min(max_coc, self.r0 * s) + 0.5 * min(max_motion, self.m0 * s) + s + 1
+        rows, first = [], 0
+        for level in range(self.nlev):
+            nw = -(-self.width // 2**level) + 2 * self.pad
+            nh = -(-self.height // 2**level) + 2 * self.pad
+            rows.append((first, nw, nh, 0))
+            first += self.layers * nw * nh
+        self.levels = np.asarray(rows, np.int32)
+        self.pixels = first
+
+    def defines(self) -> dict:
+        return {"NLEV": self.nlev, "R0": f"{self.r0!r}f", "M0": f"{self.m0!r}f",
+                "REACH": self.reach, "P": self.pad}
+
+    @property
+    def image_bytes(self) -> int:
+        return self.pixels * 16
+
+    @property
+    def bin_bytes(self) -> int:
+        return self.pixels * 48
+
+
+class MipSplat:
+    """The bin, draw and upsample passes of the mip plan (``scatter``: ``"tiles"``, owner
+    tiles with plain adds, bit-reproducible; or ``"atomic"``, float atomics)."""
+
+    def __init__(self, context: cl.Context, spp: int, has_motion: bool, geometry: MipGeometry,
+                 scatter: str):
+        self.geo, self.scatter, self.spp = geometry, scatter, int(spp)
+        # the bin pass's owner tile (a compile-time constant of its kernels)
+        self.bin_tile = min(Splat.tile_size(0, geometry.shift, PHASES),
+                            max(geometry.width, geometry.height))
+        defines = {"SPP": spp, "HAS_MOTION": int(has_motion), "NLAYERS": geometry.layers,
+                   "BIN_TILE": self.bin_tile, **geometry.defines()}
+        names = ("splat_mip_accumulate", "splat_mip_draw_tiles") if scatter == "tiles" else \
+            ("splat_mip_bin_samples", "splat_mip_draw_bins")
+        if scatter == "tiles":
+            self.rec_kernel = get_kernel(context, "splat_mip", "splat_mip_records", defines)
+        self.bin_kernel = get_kernel(context, "splat_mip", names[0], defines)
+        self.draw_kernel = get_kernel(context, "splat_mip", names[1], defines)
+        self.up_kernel = get_kernel(context, "splat_mip", "splat_mip_upsample", defines)
+        self.levels = cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                                hostbuf=geometry.levels)
+        self.events: list[tuple[str, cl.Event]] = []
+
+    def bin(self, queue, samples: DeviceSamples, inv_far: float, layer_scale: float,
+            bins: cl.Buffer, wait_for=None, records=None) -> cl.Event:
+        """``records``: the two buffers of :meth:`record_bytes` (owner tiles only)."""
+        w, h, spp = samples.width, samples.height, samples.spp
+        c0, c1 = samples.coc
+        args = [samples["color"], samples["position"], samples["depth"], samples["lens"],
+                samples["time"], samples["motion"], np.float32(c0), np.float32(c1),
+                np.float32(inv_far), np.float32(layer_scale), self.levels, bins]
+        self.events = []
+        if self.scatter == "atomic":
+            n = w * h * spp
+            self.bin_kernel.set_args(*args, np.int32(n))
+            ev = cl.enqueue_nd_range_kernel(queue, self.bin_kernel, (n,), None,
+                                            wait_for=wait_for)
+            self.events.append(("splat_mip_bin", ev))
+            return ev
+        k, tile = PHASES, self.bin_tile
+        nx, ny = -(-w // tile), -(-h // tile)
+        evs = wait_for
+        for py in range(k):
+            for px in range(k):
+                gx, gy = -(-(nx - px) // k), -(-(ny - py) // k)
+                if gx <= 0 or gy <= 0:
+                    continue
+                n = gx * gy * tile * tile * spp
+                self.rec_kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(k),
+                                         np.int32(px), np.int32(py), np.int32(n), records[0],
+                                         records[1])
+                ev = cl.enqueue_nd_range_kernel(queue, self.rec_kernel,
+                                                (tile * tile * spp, gx, gy), None,
+                                                wait_for=evs)
+                self.events.append(("splat_mip_records", ev))
+                self.bin_kernel.set_args(records[0], records[1], np.int32(n),
+                                         np.int32(gx * gy), bins)
+                ev = cl.enqueue_nd_range_kernel(queue, self.bin_kernel, (gx * gy,), None,
+                                                wait_for=[ev])
+                self.events.append(("splat_mip_bin", ev))
+                evs = [ev]
+        return self.events[-1][1]
+
+    def record_bytes(self) -> tuple[int, int]:
+        """Sizes of the bin pass's per-phase record buffers (index, 9 floats per sample)."""
+        g, k, tile = self.geo, PHASES, self.bin_tile
+        nx, ny = -(-g.width // tile), -(-g.height // tile)
+        n = -(-nx // k) * -(-ny // k) * tile * tile * self.spp
+        return 4 * n, 36 * n
+
+    def draw(self, queue, bins: cl.Buffer, img: cl.Buffer, wait_for=None) -> cl.Event:
+        g = self.geo
+        nw, nh = int(g.levels[0, 1]), int(g.levels[0, 2])
+        z = g.nlev * g.layers
+        self.events = []
+        if self.scatter == "atomic":
+            self.draw_kernel.set_args(bins, img, self.levels)
+            ev = cl.enqueue_nd_range_kernel(queue, self.draw_kernel, (nw, nh, z), None,
+                                            wait_for=wait_for)
+            self.events.append(("splat_mip_draw", ev))
+            return ev
+        k = PHASES
+        tile = max((2 * g.reach - 1) // (k - 1) + 1, 8)
+        nx, ny = -(-nw // tile), -(-nh // tile)
+        evs = wait_for
+        for py in range(k):
+            for px in range(k):
+                gx, gy = -(-(nx - px) // k), -(-(ny - py) // k)
+                if gx <= 0 or gy <= 0:
+                    continue
+                self.draw_kernel.set_args(bins, img, self.levels, np.int32(tile), np.int32(k),
+                                          np.int32(px), np.int32(py))
+                ev = cl.enqueue_nd_range_kernel(queue, self.draw_kernel, (gx, gy, z), None,
+                                                wait_for=evs)
+                self.events.append(("splat_mip_draw", ev))
+                evs = [ev]
+        return self.events[-1][1]
+
+    def upsample(self, queue, img: cl.Buffer, wait_for=None) -> cl.Event | None:
+        g = self.geo
+        self.events = []
+        ev = None
+        for level in range(g.nlev - 1, 0, -1):
+            nw, nh = int(g.levels[level - 1, 1]), int(g.levels[level - 1, 2])
+            self.up_kernel.set_args(img, self.levels, np.int32(level))
+            ev = cl.enqueue_nd_range_kernel(queue, self.up_kernel, (nw, nh, g.layers), None,
+                                            wait_for=wait_for)
+            self.events.append(("splat_mip_upsample", ev))
+            wait_for = [ev]
+        return ev

@@ -1,0 +1,439 @@
+/* splat_mip.cl: method splat's mip plan (mip_radius set): every sample's PSF is drawn at the
+ * pyramid level where it is small, after the samples that share a level pixel were merged, so
+ * the cost per sample does not grow with the blur (clrecon/splat/mip.py).
+ *
+ * Levels l = 0 .. NLEV - 1, level pixel = 2^l x 2^l frame pixels. Per sample (the centre,
+ * layer and CoC as in splat.cl):
+ *   r = |coc|, L = |motion|, l = ceil(log2(max(r / R0, L / M0, 1))) clamped to NLEV - 1,
+ *   s = 2^l; at the top level r / s and L / s are clamped to R0 and M0 (and the centre
+ *   re-centred by the clamped blur, so the sample stays inside the PSF that is drawn)
+ * so that at its level a PSF has radius <= R0 and length <= M0 level pixels.
+ *
+ * splat_mip_bin_*: each sample adds into the bin of its layer, level and level pixel
+ * q = floor(centre / s) (three float4: (rgb w, w), w (r/s, mx/s, my/s, 0), w (fx, fy, 0, 0),
+ * w = 1 / SPP, (fx, fy) the centre's offset inside q).
+ * splat_mip_draw_*: each non-empty bin draws one PSF of the bin's mean radius and motion at
+ * its weighted centroid, normalised to unit sum, times (rgb w, w) of the bin, into the level
+ * image: the disc (|m| < 1/2) clamp(rho + 1/2 - |d|, 0, 1), rho = max(r, 1/2) (below
+ * rho = 3/2 the overlap of the pixel with the square of the disc's area), or the disc
+ * swept along m, the overlap of the segment with the chord at each pixel centre, averaged
+ * over the radii rho -/+ 1/4 (a box-filtered edge); a bin with r, |m| < 1/2 is the pixel q
+ * itself (in-focus static samples: the box filter).
+ * splat_mip_upsample: level l's image, bilinearly, into level l - 1 (1/4 per child pixel),
+ * from the top level down; level 0 is then what splat_composite reads.
+ *
+ * Layout: float4 images [level][layer][nh_l][nw_l], nw_l = ceil(W / 2^l) + 2 P,
+ * nh_l = ceil(H / 2^l) + 2 P (P level pixels of pad on every side at every level); bins the
+ * same with three float4 per pixel. lv[l] = (first pixel of level l, nw_l, nh_l, 0).
+ * P >= REACH + ceil(R0 + M0 / 2) + 2: a centre lies within R0 + M0 / 2 level pixels of its
+ * frame pixel and a PSF within REACH of its bin.
+ * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, R0, M0 (floats), P, REACH.
+ */
+#include "common.h"
+
+#ifndef SPP
+#define SPP 1
+#endif
+#ifndef HAS_MOTION
+#define HAS_MOTION 1
+#endif
+#ifndef NLAYERS
+#define NLAYERS 1
+#endif
+#ifndef NLEV
+#define NLEV 1
+#endif
+#ifndef R0
+#define R0 8.0f
+#endif
+#ifndef M0
+#define M0 32.0f
+#endif
+#ifndef REACH
+#define REACH 26
+#endif
+#ifndef P
+#define P 52
+#endif
+
+#define MISS_DEPTH 1e30f
+/* Every helper is always_inline: at their sizes PoCL's inliner keeps some as calls, and a
+ * call stops the vectorisation of the work-item loop (the bin pass ran ~20x slower). */
+
+#define MIP_BIN_ARGS \
+    __global const float *color, __global const float *position, \
+    __global const float *depth, __global const float *lens, __global const float *time, \
+    __global const float *motion, const float c0, const float c1, const float inv_far, \
+    const float layer_scale, __global const int4 *lv, __global float *bins
+
+#define MIP_BIN_PASS color, position, depth, lens, time, motion, c0, c1, inv_far, \
+    layer_scale, lv, bins
+
+__attribute__((always_inline)) inline void mip_add4(__global float *dst, const float4 v, const int atomic)
+{
+    if (atomic) {
+        if (v.x != 0.0f) atomic_add_f32(dst + 0, v.x);
+        if (v.y != 0.0f) atomic_add_f32(dst + 1, v.y);
+        if (v.z != 0.0f) atomic_add_f32(dst + 2, v.z);
+        if (v.w != 0.0f) atomic_add_f32(dst + 3, v.w);
+    } else {
+        vstore4(vload4(0, dst) + v, 0, dst);
+    }
+}
+
+/* pixel index of level pixel (qx, qy) (unpadded) of `layer` at level `l` */
+__attribute__((always_inline)) inline size_t mip_index(__global const int4 *lv, const int l, const int layer, const int qx,
+                        const int qy)
+{
+    const int4 g = lv[l];
+    return (size_t)g.x + ((size_t)layer * g.z + (size_t)(qy + P)) * g.y + (size_t)(qx + P);
+}
+
+/* Sample k's bin (its pixel index, -1: none) and what it adds there: r0..r8 = w (r, g, b, 1,
+ * r / s, mx / s, my / s, fx, fy), w = 1 / SPP, (fx, fy) the centre's offset inside its bin.
+ * Nine scalars (no private array), so that they stay in registers. */
+#define MIP_REC float *r0, float *r1, float *r2, float *r3, float *r4, float *r5, float *r6, \
+    float *r7, float *r8
+#define MIP_REC_VARS float v0, v1, v2, v3, v4, v5, v6, v7, v8
+#define MIP_REC_PASS &v0, &v1, &v2, &v3, &v4, &v5, &v6, &v7, &v8
+__attribute__((always_inline)) inline int mip_record(const int k, MIP_BIN_ARGS, MIP_REC)
+{
+    const float z = depth[k];
+    const int miss = z >= MISS_DEPTH;
+    const float coc = miss ? c1 : c0 / z + c1;
+    const float r = fabs(coc);
+    float mx = 0.0f, my = 0.0f;
+#if HAS_MOTION
+    mx = motion[2 * k];
+    my = motion[2 * k + 1];
+#endif
+    const float len = sqrt(mx * mx + my * my);
+    /* l = ceil(log2(q)) from q's exponent bits (q >= 1 is normal or inf; ilogb and log2
+     * are not vectorised by PoCL): q = m 2^e, m in [1, 2) */
+    const float q = fmax(fmax(r * (1.0f / R0), len * (1.0f / M0)), 1.0f);
+    const uint qb = as_uint(q);
+    const int e = (int)((qb >> 23) & 0xffu) - 127;
+    const int l = min(e + ((qb & 0x7fffffu) != 0u ? 1 : 0), NLEV - 1);
+    const float s = (float)(1 << l), inv_s = 1.0f / s;
+    /* beyond the top level: the largest PSF the level holds, re-centred by it */
+    const float cs = r * inv_s > R0 ? R0 * s / r : 1.0f;
+    const float ms = len * inv_s > M0 ? M0 * s / len : 1.0f;
+    const float cc = coc * cs;
+    float cx = position[2 * k] - cc * lens[2 * k];
+    float cy = position[2 * k + 1] - cc * lens[2 * k + 1];
+#if HAS_MOTION
+    const float dt = (time[k] - 0.5f) * ms;
+    cx -= dt * mx;
+    cy -= dt * my;
+#endif
+    const float inv = miss ? 0.0f : 1.0f / z;
+    const int layer = clamp((int)floor((inv - inv_far) * layer_scale), 0, NLAYERS - 1);
+    cx *= inv_s;
+    cy *= inv_s;
+    const float fx = floor(cx), fy = floor(cy);
+    const int4 g = lv[l];
+    const int qx = (int)fx, qy = (int)fy;
+    /* centres beyond the pad cannot reach the frame (the host sizes P so that none of a
+     * valid frame's are); no early return: straight-line code vectorises */
+    const int out = qx < REACH - P || qy < REACH - P || qx >= g.y - P - REACH
+                    || qy >= g.z - P - REACH;
+    const float w = 1.0f / (float)SPP, wm = w * ms * inv_s;
+    *r0 = color[3 * k] * w;
+    *r1 = color[3 * k + 1] * w;
+    *r2 = color[3 * k + 2] * w;
+    *r3 = w;
+    *r4 = r * cs * inv_s * w;
+    *r5 = mx * wm;
+    *r6 = my * wm;
+    *r7 = (cx - fx) * w;
+    *r8 = (cy - fy) * w;
+    return out ? -1 : (int)mip_index(lv, l, layer, qx, qy);
+}
+
+/* A record into bin idx: three float4 (rgb w, w), w (r, mx, my, 0) / s, w (fx, fy, 0, 0) */
+__attribute__((always_inline)) inline void mip_add1(__global float *dst, const float v, const int atomic)
+{
+    if (!atomic)
+        *dst += v;
+    else if (v != 0.0f)
+        atomic_add_f32(dst, v);
+}
+
+__attribute__((always_inline)) inline void mip_bin_add(__global float *bins, const int idx, const float v0, const float v1,
+                        const float v2, const float v3, const float v4, const float v5,
+                        const float v6, const float v7, const float v8, const int atomic)
+{
+    __global float *b = bins + (size_t)idx * 12;
+    mip_add1(b + 0, v0, atomic);
+    mip_add1(b + 1, v1, atomic);
+    mip_add1(b + 2, v2, atomic);
+    mip_add1(b + 3, v3, atomic);
+    mip_add1(b + 4, v4, atomic);
+    mip_add1(b + 5, v5, atomic);
+    mip_add1(b + 6, v6, atomic);
+    mip_add1(b + 8, v7, atomic);
+    mip_add1(b + 9, v8, atomic);
+}
+
+/* One work-item per sample, atomic adds (any device). */
+__kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
+{
+    const int k = get_global_id(0);
+    if (k >= nsamples)
+        return;
+    MIP_REC_VARS;
+    const int idx = mip_record(k, MIP_BIN_PASS, MIP_REC_PASS);
+    if (idx >= 0)
+        mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
+}
+
+/* Owner tiles (as splat_tiles), in two kernels per phase: the host launches the k x k
+ * phases in turn with (k - 1) tile > 2 R - 1, R bounding how far from its pixel a sample's
+ * bin lies (frame pixels), so no two tiles of a phase write the same bin.
+ * splat_mip_records: one work-item per sample of the phase's tiles, its bin index and
+ * record into idx / rec (SoA: rec[j * n + i], n the phase's samples): in parallel,
+ * vectorised (the same arithmetic in a serial loop per tile ran ~10x slower on PoCL). splat_mip_accumulate: one work-item per tile adds its
+ * records in order: plain adds, a fixed order (reproducible). */
+__kernel void splat_mip_records(MIP_BIN_ARGS, const int width, const int height,
+                                const int k, const int phase_x, const int phase_y,
+                                const int n, __global int *idx, __global float *rec)
+{
+    /* x: the sample within its tile, (y, z): the tile of the phase; BIN_TILE and SPP are
+     * compile-time, so no integer division is left for the vector units to scalarise */
+    const int j = get_global_id(0), pix = j / SPP;
+    const int x = (k * (int)get_global_id(1) + phase_x) * BIN_TILE + pix % BIN_TILE;
+    const int y = (k * (int)get_global_id(2) + phase_y) * BIN_TILE + pix / BIN_TILE;
+    const int i = ((int)get_global_id(2) * (int)get_global_size(1) + (int)get_global_id(1))
+                  * (BIN_TILE * BIN_TILE * SPP) + j;
+    MIP_REC_VARS;
+    /* a pixel beyond the frame (the last tiles) reads the last pixel and is dropped: no
+     * branch around the loads, so that the work-items vectorise */
+    const int inside = x < width && y < height;
+    const int kk = (min(y, height - 1) * width + min(x, width - 1)) * SPP + (j - pix * SPP);
+    const int id = mip_record(kk, MIP_BIN_PASS, MIP_REC_PASS);
+    idx[i] = inside ? id : -1;
+    {
+        rec[i] = v0;
+        rec[(size_t)n + i] = v1;
+        rec[(size_t)2 * n + i] = v2;
+        rec[(size_t)3 * n + i] = v3;
+        rec[(size_t)4 * n + i] = v4;
+        rec[(size_t)5 * n + i] = v5;
+        rec[(size_t)6 * n + i] = v6;
+        rec[(size_t)7 * n + i] = v7;
+        rec[(size_t)8 * n + i] = v8;
+    }
+}
+
+__kernel void splat_mip_accumulate(__global const int *idx, __global const float *rec,
+                                   const int n, const int ntiles, __global float *bins)
+{
+    const int t = get_global_id(0);
+    if (t >= ntiles)
+        return;
+    const int per_tile = BIN_TILE * BIN_TILE * SPP;
+    for (int i = t * per_tile; i < (t + 1) * per_tile; ++i) {
+        const int id = idx[i];
+        if (id < 0)
+            continue;
+        mip_bin_add(bins, id, rec[i], rec[(size_t)n + i], rec[(size_t)2 * n + i],
+                    rec[(size_t)3 * n + i], rec[(size_t)4 * n + i], rec[(size_t)5 * n + i],
+                    rec[(size_t)6 * n + i], rec[(size_t)7 * n + i], rec[(size_t)8 * n + i], 0);
+    }
+}
+
+/* The unnormalised PSF at offset d (level pixels) from its centre: the antialiased disc of
+ * radius rho, or (len >= 1/2) that disc swept along len u, u a unit vector. */
+__attribute__((always_inline)) inline float mip_psf(const float2 d, const float rho, const float len, const float2 u)
+{
+    if (len < 0.5f) {
+        if (rho >= 1.5f)
+            return clamp(rho + 0.5f - length(d), 0.0f, 1.0f);
+        /* a small disc: the pixel's overlap with the square of the disc's area (the pixel
+         * integral the antialiased disc overestimates by ~40% at the rim here) */
+        const float a = 0.886227f * rho;  /* half the side: sqrt(pi) rho / 2 */
+        const float ox = fmax(fmin(d.x + 0.5f, a) - fmax(d.x - 0.5f, -a), 0.0f);
+        const float oy = fmax(fmin(d.y + 0.5f, a) - fmax(d.y - 0.5f, -a), 0.0f);
+        return ox * oy;
+    }
+    const float x = dot(d, u), y = d.y * u.x - d.x * u.y, half_len = 0.5f * len;
+    float v = 0.0f;
+    for (int j = 0; j < 2; ++j) {
+        const float rr = rho + (j ? 0.25f : -0.25f);
+        const float h = sqrt(fmax(rr * rr - y * y, 0.0f));
+        v += fmax(fmin(x + h, half_len) - fmax(x - h, -half_len), 0.0f);
+    }
+    return v;
+}
+
+/* A bin's PSF: its weight b0, centre c (level pixels), radius, length, direction, the
+ * pixels it covers [x0, x1] x [y0, y1] (within REACH of the bin), and where it is. */
+typedef struct {
+    float4 b0;
+    float2 c, u;
+    float rho, len, sum;
+    int x0, x1, y0, y1, point;
+    size_t bi;
+} mip_psf_t;
+
+/* The PSF of bin (qx, qy) of `layer` at level l; 0 for an empty bin. A point (r, |m| < 1/2)
+ * is the bin's pixel itself; sum is the PSF's analytic sum, or 0 where the pixels must be
+ * summed (small radii). */
+__attribute__((always_inline)) inline int mip_params(const int l, const int layer, const int qx, const int qy,
+                      __global const float *bins, __global const int4 *lv, mip_psf_t *p)
+{
+    p->bi = mip_index(lv, l, layer, qx, qy);
+    p->b0 = vload4(0, bins + p->bi * 12);
+    if (!(p->b0.w > 0.0f))
+        return 0;
+    const float iw = 1.0f / p->b0.w;
+    const float4 b1 = vload4(0, bins + p->bi * 12 + 4) * iw;
+    const float4 b2 = vload4(0, bins + p->bi * 12 + 8) * iw;
+    const float2 m = (float2)(b1.y, b1.z);
+    p->len = length(m);
+    p->point = b1.x < 0.5f && p->len < 0.5f;
+    p->rho = fmax(b1.x, 0.5f);
+    p->u = p->len > 0.0f ? m / p->len : (float2)(1.0f, 0.0f);
+    p->c = (float2)((float)qx + b2.x, (float)qy + b2.y);
+    const float2 e = fabs(p->u) * (0.5f * p->len) + (float2)(p->rho + 1.0f);
+    p->x0 = max((int)floor(p->c.x - e.x), qx - REACH);
+    p->x1 = min((int)floor(p->c.x + e.x), qx + REACH);
+    p->y0 = max((int)floor(p->c.y - e.y), qy - REACH);
+    p->y1 = min((int)floor(p->c.y + e.y), qy + REACH);
+    /* the plane integral of mip_psf (the disc pi (rho^2 + 1/12), the swept disc
+     * 2 len pi (rho^2 + 1/16)), which the pixel sum matches to ~1% from rho = 3 (disc) and
+     * rho = 4 (swept) on (tests/test_splat_mip.py); below, the pixels are summed. (An
+     * energy error cancels in the layer's colour, rgb / coverage.) */
+    const float r2 = p->rho * p->rho;
+    p->sum = p->len < 0.5f ? (p->rho >= 3.0f ? M_PI_F * (r2 + (1.0f / 12.0f)) : 0.0f)
+                           : (p->rho >= 4.0f ? 2.0f * p->len * M_PI_F * (r2 + 0.0625f) : 0.0f);
+    return 1;
+}
+
+__attribute__((always_inline)) inline float mip_psf_at(const mip_psf_t *p, const int x, const int y)
+{
+    return mip_psf((float2)((float)x + 0.5f, (float)y + 0.5f) - p->c, p->rho, p->len, p->u);
+}
+
+/* Draw bin (qx, qy) of `layer` at level l into img, one work-item alone. */
+__attribute__((always_inline)) inline void mip_draw_one(const int l, const int layer, const int qx, const int qy,
+                         const int atomic, __global const float *bins, __global float *img,
+                         __global const int4 *lv)
+{
+    mip_psf_t p;
+    if (!mip_params(l, layer, qx, qy, bins, lv, &p))
+        return;
+    float sum = p.sum;
+    if (!p.point && !(sum > 0.0f))
+        for (int y = p.y0; y <= p.y1; ++y)
+            for (int x = p.x0; x <= p.x1; ++x)
+                sum += mip_psf_at(&p, x, y);
+    if (p.point || !(sum > 0.0f)) {
+        mip_add4(img + p.bi * 4, p.b0, atomic);
+        return;
+    }
+    const float4 wv = p.b0 * (1.0f / sum);
+    const int4 g = lv[l];
+    __global float *base = img + ((size_t)g.x + (size_t)layer * g.z * g.y) * 4;
+    for (int y = p.y0; y <= p.y1; ++y) {
+        __global float *row = base + (size_t)(y + P) * g.y * 4;
+        int xa = p.x0, xb = p.x1, ia = p.x1 + 1, ib = p.x1;
+        if (p.len < 0.5f && p.rho >= 1.5f) {
+            /* a disc: only the row's chord, and inside |d| <= rho - 1/2 the PSF is 1 (a run
+             * of plain adds, which vectorises) */
+            const float dy = (float)y + 0.5f - p.c.y, ro = p.rho + 0.5f, ri = p.rho - 0.5f;
+            const float ho = sqrt(fmax(ro * ro - dy * dy, 0.0f));
+            xa = max(xa, (int)floor(p.c.x - ho - 0.5f));
+            xb = min(xb, (int)floor(p.c.x + ho - 0.5f) + 1);
+            ia = xb + 1;
+            ib = xb;
+            if (ri * ri > dy * dy) {
+                const float hi = sqrt(ri * ri - dy * dy);
+                ia = max((int)ceil(p.c.x - hi - 0.5f), xa);
+                ib = min((int)floor(p.c.x + hi - 0.5f), xb);
+            }
+        }
+        for (int x = xa; x < ia; ++x) {
+            const float v = mip_psf_at(&p, x, y);
+            if (v > 0.0f)
+                mip_add4(row + (size_t)(x + P) * 4, v * wv, atomic);
+        }
+        if (atomic) {
+            for (int x = ia; x <= ib; ++x)
+                mip_add4(row + (size_t)(x + P) * 4, wv, 1);
+        } else {
+            __global float4 *run = (__global float4 *)row + P;
+            for (int x = ia; x <= ib; ++x)
+                run[x] += wv;
+        }
+        for (int x = max(ib + 1, ia); x <= xb; ++x) {
+            const float v = mip_psf_at(&p, x, y);
+            if (v > 0.0f)
+                mip_add4(row + (size_t)(x + P) * 4, v * wv, atomic);
+        }
+    }
+}
+
+/* One work-item per bin (x, y of the widest level, z = level * NLAYERS + layer), atomic. */
+__kernel void splat_mip_draw_bins(__global const float *bins, __global float *img,
+                                  __global const int4 *lv)
+{
+    const int l = get_global_id(2) / NLAYERS, layer = get_global_id(2) % NLAYERS;
+    const int4 g = lv[l];
+    const int qx = get_global_id(0) - P, qy = get_global_id(1) - P;
+    if (qx >= g.y - P || qy >= g.z - P)
+        return;
+    mip_draw_one(l, layer, qx, qy, 1, bins, img, lv);
+}
+
+/* One work-item per tile of tile x tile level pixels at every level (z = level * NLAYERS +
+ * layer), phases k x k with (k - 1) tile > 2 REACH - 1: no two work-items of a launch
+ * write one pixel, plain adds in a fixed order. Tiles cover the padded grid. */
+__kernel void splat_mip_draw_tiles(__global const float *bins, __global float *img,
+                                   __global const int4 *lv, const int tile, const int k,
+                                   const int phase_x, const int phase_y)
+{
+    const int l = get_global_id(2) / NLAYERS, layer = get_global_id(2) % NLAYERS;
+    const int4 g = lv[l];
+    const int x0 = (k * get_global_id(0) + phase_x) * tile;
+    const int y0 = (k * get_global_id(1) + phase_y) * tile;
+    /* bins within REACH of the border hold nothing (mip_record skips them) */
+    if (x0 >= g.y - REACH || y0 >= g.z - REACH)
+        return;
+    const int x1 = min(x0 + tile, g.y - REACH), y1 = min(y0 + tile, g.z - REACH);
+    for (int y = max(y0, REACH); y < y1; ++y)
+        for (int x = max(x0, REACH); x < x1; ++x)
+            mip_draw_one(l, layer, x - P, y - P, 0, bins, img, lv);
+}
+
+/* Level l's image, bilinearly, added into level l - 1: one work-item per padded pixel of
+ * level l - 1 (z = layer). Level-l pixel i (padded) has its centre at child coordinate
+ * 2 (i - P) + 1 - 0.5 + P; a child pixel j reads its parent at (j - P) / 2 - 0.25 + P. */
+__kernel void splat_mip_upsample(__global float *img, __global const int4 *lv, const int l)
+{
+    const int x = get_global_id(0), y = get_global_id(1), layer = get_global_id(2);
+    const int4 gc = lv[l - 1], gp = lv[l];
+    if (x >= gc.y || y >= gc.z)
+        return;
+    const float ux = 0.5f * (float)(x - P) - 0.25f + (float)P;
+    const float uy = 0.5f * (float)(y - P) - 0.25f + (float)P;
+    const float fx0 = floor(ux), fy0 = floor(uy);
+    const float fx = ux - fx0, fy = uy - fy0;
+    const int ix = (int)fx0, iy = (int)fy0;
+    __global const float *par = img + ((size_t)gp.x + (size_t)layer * gp.z * gp.y) * 4;
+    float4 acc = (float4)(0.0f);
+    for (int dy = 0; dy < 2; ++dy) {
+        const int py = iy + dy;
+        if (py < 0 || py >= gp.z)
+            continue;
+        const float wy = dy ? fy : 1.0f - fy;
+        for (int dx = 0; dx < 2; ++dx) {
+            const int px = ix + dx;
+            if (px < 0 || px >= gp.y)
+                continue;
+            acc += (wy * (dx ? fx : 1.0f - fx)) * vload4((size_t)py * gp.y + px, par);
+        }
+    }
+    __global float *dst = img + ((size_t)gc.x + ((size_t)layer * gc.z + y) * gc.y + x) * 4;
+    vstore4(vload4(0, dst) + 0.25f * acc, 0, dst);
+}
