@@ -104,8 +104,11 @@ ABLATIONS: dict[str, tuple[tuple[str, dict[str, Any], str], ...]] = {
     "splat": (
         ("2 layers", {"layers": 2}, "depth layers of the composite: fewer"),
         ("8 layers", {"layers": 8}, "depth layers of the composite: more"),
-        ("dense", {"dense": True}, "sparse spreadlets instead of the dense PSF"),
-        ("pyramid f5", {"pyramid": "f5"}, "integration filter set: f5 instead of f7"),
+        ("mip radius 16", {"mip_radius": 16.0}, "mip levels: PSFs resolved to 16 level "
+                                                "pixels of radius instead of 8"),
+        ("paper plan", {"mip_radius": 0}, "the mip levels and bins instead of the paper's "
+                                          "full-resolution spreadlets"),
+        ("dense", {"dense": True}, "(the paper's plan) the dense PSF at full resolution"),
     ),
 }
 
@@ -124,7 +127,8 @@ UNSWITCHED: dict[str, tuple[str, ...]] = {
     "splat": ("the composite at depth edges: coverage-normalised layers, the farthest "
               "well-covered layer fills, so occluded surfaces behind an edge are lost or "
               "doubled",
-              "PSF tables clamp the CoC and split long motion into segments",
+              "the mip plan: the samples of one layer and level pixel share one PSF (their "
+              "mean radius and motion), and a PSF is resolved to its level's pixels",
               "holes: pixels no sample's PSF covers in a layer"),
 }
 

@@ -63,9 +63,12 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
     ),
     "splat": (
         ("splat", {"safeguard": False}),
-        ("splat f5", {"pyramid": "f5", "safeguard": False}),
+        ("splat mip 4", {"mip_radius": 4.0, "safeguard": False}),
+        ("splat mip 12", {"mip_radius": 12.0, "safeguard": False}),
         ("splat 2 layers", {"layers": 2, "safeguard": False}),
-        ("splat dense", {"dense": True, "safeguard": False}),
+        ("splat paper", {"mip_radius": 0, "safeguard": False}),
+        ("splat paper f5", {"mip_radius": 0, "pyramid": "f5", "safeguard": False}),
+        ("splat paper dense", {"dense": True, "safeguard": False}),
         ("splat +safeguard", {}),
     ),
 }
