@@ -187,59 +187,49 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
         mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
 }
 
-/* Owner tiles (as splat_tiles), in two kernels per phase: the host launches the k x k
- * phases in turn with (k - 1) tile > 2 R - 1, R bounding how far from its pixel a sample's
- * bin lies (frame pixels), so no two tiles of a phase write the same bin.
- * splat_mip_records: one work-item per sample of the phase's tiles, its bin index and
- * record into idx / rec (SoA: rec[j * n + i], n the phase's samples): in parallel,
- * vectorised (the same arithmetic in a serial loop per tile ran ~10x slower on PoCL). splat_mip_accumulate: one work-item per tile adds its
- * records in order: plain adds, a fixed order (reproducible). */
-__kernel void splat_mip_records(MIP_BIN_ARGS, const int width, const int height,
-                                const int k, const int phase_x, const int phase_y,
-                                const int n, __global int *idx, __global float *rec)
+#ifndef BIN_TILE
+#define BIN_TILE 16
+#endif
+#define ROW_MAX 512
+/* One work-item (and work-group) per owner tile of BIN_TILE x BIN_TILE frame pixels: the
+ * host launches the k x k phases in turn with (k - 1) BIN_TILE > 2 R - 1, R bounding how
+ * far from its pixel a sample's bin lies (frame pixels), so no two work-items of a launch
+ * write the same bin. Along each row of its tile, ROW_MAX samples at a time: the records
+ * go into local memory in one loop over contiguous samples, which the compiler vectorises
+ * (the same arithmetic interleaved with the adds ran ~10x slower on PoCL), then are added
+ * in order: plain adds, a fixed order (reproducible). */
+__kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int height,
+                                  const int k, const int phase_x, const int phase_y)
 {
-    /* x: the sample within its tile, (y, z): the tile of the phase; BIN_TILE and SPP are
-     * compile-time, so no integer division is left for the vector units to scalarise */
-    const int j = get_global_id(0), pix = j / SPP;
-    const int x = (k * (int)get_global_id(1) + phase_x) * BIN_TILE + pix % BIN_TILE;
-    const int y = (k * (int)get_global_id(2) + phase_y) * BIN_TILE + pix / BIN_TILE;
-    const int i = ((int)get_global_id(2) * (int)get_global_size(1) + (int)get_global_id(1))
-                  * (BIN_TILE * BIN_TILE * SPP) + j;
-    MIP_REC_VARS;
-    /* a pixel beyond the frame (the last tiles) reads the last pixel and is dropped: no
-     * branch around the loads, so that the work-items vectorise */
-    const int inside = x < width && y < height;
-    const int kk = (min(y, height - 1) * width + min(x, width - 1)) * SPP + (j - pix * SPP);
-    const int id = mip_record(kk, MIP_BIN_PASS, MIP_REC_PASS);
-    idx[i] = inside ? id : -1;
-    {
-        rec[i] = v0;
-        rec[(size_t)n + i] = v1;
-        rec[(size_t)2 * n + i] = v2;
-        rec[(size_t)3 * n + i] = v3;
-        rec[(size_t)4 * n + i] = v4;
-        rec[(size_t)5 * n + i] = v5;
-        rec[(size_t)6 * n + i] = v6;
-        rec[(size_t)7 * n + i] = v7;
-        rec[(size_t)8 * n + i] = v8;
-    }
-}
-
-__kernel void splat_mip_accumulate(__global const int *idx, __global const float *rec,
-                                   const int n, const int ntiles, __global float *bins)
-{
-    const int t = get_global_id(0);
-    if (t >= ntiles)
+    __local int ridx[ROW_MAX];
+    __local float r0[ROW_MAX], r1[ROW_MAX], r2[ROW_MAX], r3[ROW_MAX], r4[ROW_MAX],
+        r5[ROW_MAX], r6[ROW_MAX], r7[ROW_MAX], r8[ROW_MAX];
+    const int x0 = (k * (int)get_group_id(0) + phase_x) * BIN_TILE;
+    const int y0 = (k * (int)get_group_id(1) + phase_y) * BIN_TILE;
+    if (x0 >= width || y0 >= height)
         return;
-    const int per_tile = BIN_TILE * BIN_TILE * SPP;
-    for (int i = t * per_tile; i < (t + 1) * per_tile; ++i) {
-        const int id = idx[i];
-        if (id < 0)
-            continue;
-        mip_bin_add(bins, id, rec[i], rec[(size_t)n + i], rec[(size_t)2 * n + i],
-                    rec[(size_t)3 * n + i], rec[(size_t)4 * n + i], rec[(size_t)5 * n + i],
-                    rec[(size_t)6 * n + i], rec[(size_t)7 * n + i], rec[(size_t)8 * n + i], 0);
-    }
+    const int row = (min(x0 + BIN_TILE, width) - x0) * SPP;
+    for (int y = y0; y < min(y0 + BIN_TILE, height); ++y)
+        for (int c = 0; c < row; c += ROW_MAX) {
+            const int first = (y * width + x0) * SPP + c, n = min(ROW_MAX, row - c);
+            for (int j = 0; j < n; ++j) {
+                MIP_REC_VARS;
+                ridx[j] = mip_record(first + j, MIP_BIN_PASS, MIP_REC_PASS);
+                r0[j] = v0;
+                r1[j] = v1;
+                r2[j] = v2;
+                r3[j] = v3;
+                r4[j] = v4;
+                r5[j] = v5;
+                r6[j] = v6;
+                r7[j] = v7;
+                r8[j] = v8;
+            }
+            for (int j = 0; j < n; ++j)
+                if (ridx[j] >= 0)
+                    mip_bin_add(bins, ridx[j], r0[j], r1[j], r2[j], r3[j], r4[j], r5[j],
+                                r6[j], r7[j], r8[j], 0);
+        }
 }
 
 /* The unnormalised PSF at offset d (level pixels) from its centre: the antialiased disc of

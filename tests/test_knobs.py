@@ -66,6 +66,7 @@ BAD = {
         "max_error": [-0.1, math.nan, -math.inf, "x"],
         "scatter": ["locks", 1],
         "deterministic": [1, "yes", None],
+        "mip_radius": [0.5, -1.0, 33.0, math.nan, math.inf, "8", True],
     },
 }
 

@@ -234,9 +234,6 @@ class SplatPipeline(Pipeline):
                                    local_size_of(config("splat_composite")))
         temps = {"mip_image": geo.image_bytes, "mip_bins": geo.bin_bytes,
                  "ring": self.layers * 16}
-        if self.mip.scatter == "tiles":
-            ib, rb = self.mip.record_bytes()
-            temps |= {"mip_index": ib, "mip_records": rb}
 
         def clear(queue, f, wait):
             return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
@@ -245,9 +242,7 @@ class SplatPipeline(Pipeline):
 
         def bin_(queue, f, wait):
             inv_far, scale = _layer_params(f.info, self.layers)
-            b = f.buffers
-            records = (b["mip_index"], b["mip_records"]) if "mip_index" in b else None
-            self.mip.bin(queue, f.samples, inv_far, scale, b["mip_bins"], wait, records)
+            self.mip.bin(queue, f.samples, inv_far, scale, f.buffers["mip_bins"], wait)
             return self.mip.events
 
         def draw(queue, f, wait):
@@ -265,8 +260,7 @@ class SplatPipeline(Pipeline):
                 geo.pad, b["out"], wait, color=b["color"], spp=f.spp))]
 
         steps = [Step("clear", (), ("mip_image", "mip_bins"), clear),
-                 Step("bin", tuple(FIELDS), ("mip_bins",) + tuple(
-                     k for k in ("mip_index", "mip_records") if k in temps), bin_),
+                 Step("bin", tuple(FIELDS), ("mip_bins",), bin_),
                  Step("draw", ("mip_bins",), ("mip_image",), draw)]
         if geo.nlev > 1:
             steps.append(Step("upsample", ("mip_image",), ("mip_image",), upsample))

@@ -94,10 +94,8 @@ class MipSplat:
                             max(geometry.width, geometry.height))
         defines = {"SPP": spp, "HAS_MOTION": int(has_motion), "NLAYERS": geometry.layers,
                    "BIN_TILE": self.bin_tile, **geometry.defines()}
-        names = ("splat_mip_accumulate", "splat_mip_draw_tiles") if scatter == "tiles" else \
+        names = ("splat_mip_bin_tiles", "splat_mip_draw_tiles") if scatter == "tiles" else \
             ("splat_mip_bin_samples", "splat_mip_draw_bins")
-        if scatter == "tiles":
-            self.rec_kernel = get_kernel(context, "splat_mip", "splat_mip_records", defines)
         self.bin_kernel = get_kernel(context, "splat_mip", names[0], defines)
         self.draw_kernel = get_kernel(context, "splat_mip", names[1], defines)
         self.up_kernel = get_kernel(context, "splat_mip", "splat_mip_upsample", defines)
@@ -106,8 +104,7 @@ class MipSplat:
         self.events: list[tuple[str, cl.Event]] = []
 
     def bin(self, queue, samples: DeviceSamples, inv_far: float, layer_scale: float,
-            bins: cl.Buffer, wait_for=None, records=None) -> cl.Event:
-        """``records``: the two buffers of :meth:`record_bytes` (owner tiles only)."""
+            bins: cl.Buffer, wait_for=None) -> cl.Event:
         w, h, spp = samples.width, samples.height, samples.spp
         c0, c1 = samples.coc
         args = [samples["color"], samples["position"], samples["depth"], samples["lens"],
@@ -129,28 +126,14 @@ class MipSplat:
                 gx, gy = -(-(nx - px) // k), -(-(ny - py) // k)
                 if gx <= 0 or gy <= 0:
                     continue
-                n = gx * gy * tile * tile * spp
-                self.rec_kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(k),
-                                         np.int32(px), np.int32(py), np.int32(n), records[0],
-                                         records[1])
-                ev = cl.enqueue_nd_range_kernel(queue, self.rec_kernel,
-                                                (tile * tile * spp, gx, gy), None,
+                self.bin_kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(k),
+                                         np.int32(px), np.int32(py))
+                # one work-item per work-group: the tiles spread over the compute units
+                ev = cl.enqueue_nd_range_kernel(queue, self.bin_kernel, (gx, gy), (1, 1),
                                                 wait_for=evs)
-                self.events.append(("splat_mip_records", ev))
-                self.bin_kernel.set_args(records[0], records[1], np.int32(n),
-                                         np.int32(gx * gy), bins)
-                ev = cl.enqueue_nd_range_kernel(queue, self.bin_kernel, (gx * gy,), None,
-                                                wait_for=[ev])
                 self.events.append(("splat_mip_bin", ev))
                 evs = [ev]
         return self.events[-1][1]
-
-    def record_bytes(self) -> tuple[int, int]:
-        """Sizes of the bin pass's per-phase record buffers (index, 9 floats per sample)."""
-        g, k, tile = self.geo, PHASES, self.bin_tile
-        nx, ny = -(-g.width // tile), -(-g.height // tile)
-        n = -(-nx // k) * -(-ny // k) * tile * tile * self.spp
-        return 4 * n, 36 * n
 
     def draw(self, queue, bins: cl.Buffer, img: cl.Buffer, wait_for=None) -> cl.Event:
         g = self.geo
