@@ -111,6 +111,48 @@ def test_block_sort_is_the_cpu_default_and_falls_back(device, rng):
                             safeguard=False)
 
 
+@pytest.mark.parametrize("supers", [1, 2])
+@pytest.mark.parametrize("shape", [(1, 1, 3), (11, 13, 4), (9, 20, 2), (17, 6, 5)],
+                         ids=lambda s: "x".join(map(str, s)))
+@pytest.mark.parametrize("knobs", [dict(scales=2), dict(scales=4),
+                                   dict(scales=2, exponent=1.3, smooth_motion=False)],
+                         ids=["2", "4", "2exp-static"])
+def test_block_kernel_one_or_four_blocks_per_work_item(device, rng, supers, shape, knobs):
+    """sweep_block with one 4x4 block per work-item and with 2x2 blocks sharing one sorted
+    window (the default where local memory holds it): both the reference's image, on
+    sizes that leave partial blocks and work-items whose blocks lie past the image; the
+    local memory the kernel declares is what block_local_bytes says."""
+    import pyopencl as cl
+
+    from clrecon.pipeline import DeviceSamples
+    from clrecon.sweep.block import SweepBlock, block_local_bytes
+
+    buf = frame(rng, *shape)
+    h, w, s = shape
+    scales, exponent = knobs["scales"], knobs.get("exponent", 1.0)
+    motion = knobs.get("smooth_motion", True)
+    if block_local_bytes(scales, s, 1, supers) > device.device.local_mem_size:
+        pytest.skip("the device's local memory does not hold the window")
+    sweep = SweepBlock(device.context, s, scales, exponent, motion, supers=supers)
+    info = cl.kernel_work_group_info.LOCAL_MEM_SIZE
+    assert sweep.kernel.get_work_group_info(info, device.device) == \
+        block_local_bytes(scales, s, 1, supers)
+    samples = DeviceSamples.upload(device.queue, buf)
+    out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, h * w * 12)
+    sweep(device.queue, samples, 1.0, out).wait()
+    got = np.empty((h, w, 3), np.float32)
+    cl.enqueue_copy(device.queue, got, out).wait()
+    want = ref.reconstruct(buf, scales=scales, exponent=exponent, smooth_motion=motion)
+    assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"block supers={supers} {knobs}")
+
+
+def test_block_kernel_refuses_bad_supers(device):
+    from clrecon.sweep.block import SweepBlock
+
+    with pytest.raises(ValueError, match="supers: must be one of"):
+        SweepBlock(device.context, 4, 2, supers=3)
+
+
 @pytest.mark.parametrize("scale", [1.0, 0.4])
 def test_dof_layers_match_reference(device, rng, scale):
     buf = frame(rng, motion=False)

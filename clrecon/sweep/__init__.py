@@ -5,8 +5,10 @@ Plans (knobs in brackets):
 * sorted sweep [``scales=2`` (Appendix A, 1x1/5x5 blended) or ``4`` (Appendix B),
   ``exponent``], by one of three plans, same image (``sort``):
 
-  - ``"block"`` (default on CPUs): ``sweep_block`` alone [``group``]: one work-item per 4x4
-    pixel block radix-sorts the block's window once and sweeps it in float16 lanes;
+  - ``"block"`` (default on CPUs): ``sweep_block`` alone [``group``]: one work-item per 2x2
+    blocks of 4x4 pixels (one block where local memory does not hold two a side)
+    radix-sorts their shared window once, splits it into each block's window and sweeps it
+    in float16 lanes;
   - ``"tile"`` (default elsewhere): ``sweep_prepare`` -> ``sweep_resolve`` [``tile``,
     ``tile_merge="auto"|"serial"|"bitonic"``]: one sort per tile in local memory, then every
     pixel walks the tile's list;
@@ -265,8 +267,9 @@ class SweepPipeline(Pipeline):
                 return [("sweep_block", self.block(queue, f.samples, self.diameter_scale,
                                                    f.buffers["out"], wait))]
 
-            self.set_plan(Plan("sweep", "block", fields,
-                               (Step("sweep_block", fields, ("out",), block),), {}, bounds))
+            reads = ("color", "depth", "motion")  # sweep_block needs no positions
+            self.set_plan(Plan("sweep", "block", reads,
+                               (Step("sweep_block", reads, ("out",), block),), {}, bounds))
             return
         self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
         if given:  # the caller's knobs win over tuning; the rest from the pass default
