@@ -245,7 +245,10 @@ def test_safeguarded_method_is_looked_into():
     full = {f: npx * SPP * 4 * int(np.prod(FIELDS[f])) for f in FIELDS}
     half = {f: v // SPP for f, v in full.items()}  # 2 spp: 1 + 1 per pixel
     own = _bytes_of_plan(paper, full, npx * 12)
-    halves = _bytes_of_plan(paper, half, npx * 12)
+    # the halves run a plan made for half the spp (reproject's buckets: a byte per sample)
+    half_plan = make_pipeline("layered", dev.context,
+                              synthetic_frame(w, h, SPP // 2).inspect(), safeguard=False)
+    halves = _bytes_of_plan(half_plan, half, npx * 12)
     assert pb["reproject"] == own["reproject"]
     assert pb["reproject (halves)"] == 2 * halves["reproject"]
     assert pb[sheared] == own["filter_sheared"]

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pytest
 from conftest import assert_close
 from layered_frames import LAY, empty, fields, frame, kabc, read, to_device, upload
@@ -83,3 +84,68 @@ def test_reprojection_of_one_sample():
     f["time"][6, 5, 0] = 1.0
     g = ref.reproject(f, p, (0.0, 0.0, 0.0), lay)[0, 0, 0].reshape(-1)[:256].reshape(16, 16)
     assert g[6 + 4, 2 + 4] == 1.0 and g.sum() == 1.0
+
+
+@pytest.mark.parametrize("spp", [3, 4, 8])
+def test_reproject_buckets_are_the_references(device, rng, spp):
+    """reproject_buckets writes every sample's depth bucket (a byte, read by the slots instead
+    of the depth): exactly the reference's, misses in the last bucket, for the scalar (spp 3)
+    and both vector widths."""
+    buf = frame(rng, s=spp)
+    lay = ref.Layout(**{**LAY.__dict__, "spp": spp})
+    params = params_of(buf, lay)
+    q = device.queue
+    shape = params.shape[:2] + (ref.NCH, lay.dmax * lay.dmax)
+    k = kabc(buf, lay)
+    n = buf.depth.size
+    buckets = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, n)
+    ev = Reproject(device.context, lay, False, LocalSize(1, 1))(
+        q, upload(q, buf), k, to_device(q, params), empty(q, shape), buckets=buckets)
+    got = np.empty(n, np.uint8)
+    cl.enqueue_copy(q, got, buckets, wait_for=[ev]).wait()
+    want = ref.buckets(buf.depth, *k, lay.nbuckets).ravel()
+    assert (want == lay.nbuckets - 1).any() and len(np.unique(want)) > 3
+    np.testing.assert_array_equal(got, want)
+
+
+def test_reproject_refuses_a_short_buckets_buffer(device, rng):
+    buf = frame(rng)
+    params = params_of(buf, LAY)
+    q = device.queue
+    shape = params.shape[:2] + (ref.NCH, LAY.dmax * LAY.dmax)
+    short = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, buf.depth.size - 1)
+    with pytest.raises(ValueError, match=f"buckets: needs {buf.depth.size} bytes"):
+        Reproject(device.context, LAY)(q, upload(q, buf), kabc(buf), to_device(q, params),
+                                       empty(q, shape), buckets=short)
+
+
+@pytest.mark.parametrize("spp", [4, 8])
+def test_reproject_local_accumulation_gives_the_same_grids(device, rng, spp):
+    """The owner of a slot adds its own channels into local memory (a float4 per cell) where
+    it fits, else into the grids' planes: the same adds in the same order, so the same bits."""
+    buf = frame(rng, s=spp)
+    lay = ref.Layout(**{**LAY.__dict__, "spp": spp})
+    params = params_of(buf, lay)
+    q = device.queue
+    shape = params.shape[:2] + (ref.NCH, lay.dmax * lay.dmax)
+    k = kabc(buf, lay)
+    samples, dparams = upload(q, buf), to_device(q, params)
+    got = {}
+    for local_acc in (True, False):
+        rp = Reproject(device.context, lay, False, LocalSize(1, 1), local_acc=local_acc)
+        assert rp.local_acc is local_acc
+        grids = empty(q, shape)
+        got[local_acc] = ref.used_grid(read(q, grids, shape,
+                                            [rp(q, samples, k, dparams, grids)]), params)
+    want = ref.used_grid(ref.reproject(fields(buf), params.astype(np.float64), k, lay), params)
+    assert sum(x[3].sum() for x in want) > 0
+    for a, b in zip(got[True], got[False]):
+        assert np.array_equal(a, b)
+    assert_close(np.concatenate([x.ravel() for x in got[True]]),
+                 np.concatenate([x.ravel() for x in want]), rtol=1e-4, atol=2e-4, what="grids")
+
+
+def test_reproject_local_accumulation_needs_the_room(device):
+    lay = ref.Layout(tile=128, gmax=256)  # 16 * 640^2 bytes: beyond any device's local memory
+    with pytest.raises(ValueError, match="local_acc: needs 6553600 bytes"):
+        Reproject(device.context, lay, False, LocalSize(1, 1), local_acc=True)

@@ -267,7 +267,8 @@ class LayeredPipeline(Pipeline):
         sizes = {"stats": ntx * nty * lay.nbuckets * NSTAT * 4,
                  "params": slots * NPAR * 4,
                  "grids": slots * NCH * lay.dmax ** 2 * 4,
-                 "filtered": slots * NCH * lay.ft ** 2 * 4}
+                 "filtered": slots * NCH * lay.ft ** 2 * 4,
+                 "buckets": Reproject.buckets_bytes(width, height, lay.spp)}
         if self.fixed:
             sizes |= {"grids_fixed": 2 * sizes["grids"], "color_bound": BOUND_BYTES}
         if self.filter == "rotated":
@@ -300,7 +301,7 @@ class LayeredPipeline(Pipeline):
             b = f.buffers
             kabc = self.bucket_params(f.samples, f.info)
             self.reproject(queue, f.samples, kabc, b["params"], b["grids"], wait,
-                           b.get("grids_fixed"), b.get("color_bound"))
+                           b.get("grids_fixed"), b.get("color_bound"), b["buckets"])
             return list(self.reproject.events)
 
         def filt(queue, f, wait):
@@ -320,7 +321,7 @@ class LayeredPipeline(Pipeline):
         return Plan("layered", f"{self.mode}/{self.filter}", fields, (
             Step("tile_stats", ("depth",), ("stats",), stats),
             Step("partition_setup", ("stats",), ("params",), setup),
-            Step("reproject", fields + ("params",), ("grids",) + fixed, reproject),
+            Step("reproject", fields + ("params",), ("buckets", "grids") + fixed, reproject),
             Step(f"filter_{self.filter}", ("params", "grids"), work + ("filtered",), filt),
             Step("composite", ("color", "params", "filtered"), ("out",), composite)),
             temps, self.bounds)
