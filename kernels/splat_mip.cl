@@ -2,12 +2,13 @@
  * pyramid level where it is small, after the samples that share a level pixel were merged, so
  * the cost per sample does not grow with the blur (clrecon/splat/mip.py).
  *
- * Levels l = 0 .. NLEV - 1, level pixel = 2^l x 2^l frame pixels. Per sample (the centre,
- * layer and CoC as in splat.cl):
- *   r = |coc|, L = |motion|, l = ceil(log2(max(r / R0, L / M0, 1))) clamped to NLEV - 1,
- *   s = 2^l; at the top level r / s and L / s are clamped to R0 and M0 (and the centre
- *   re-centred by the clamped blur, so the sample stays inside the PSF that is drawn)
- * so that at its level a PSF has radius <= R0 and length <= M0 level pixels.
+ * Levels l = 0 .. NLEV - 1, level pixel = s = 2^l x 2^l frame pixels; level l holds PSFs of
+ * radius <= RL[l] and length <= ML[l] level pixels (RL[l] = R0 min(2^(l/2), 4), ML = 4 RL:
+ * the coarse levels, whose bins are few, resolve their PSFs more finely). A sample with
+ * r = |coc|, L = |motion| (the centre, layer and CoC as in splat.cl) goes to the lowest
+ * level with r <= TR[l] = RL[l] 2^l and L <= TM[l] = ML[l] 2^l, at most NLEV - 1; there r / s
+ * and L / s are clamped to RL and ML (the centre re-centred by the clamped blur, so the
+ * sample stays inside the PSF that is drawn).
  *
  * splat_mip_bin_*: each sample adds into the bin of its layer, level and level pixel
  * q = floor(centre / s) (three float4: (rgb w, w), w (r/s, mx/s, my/s, 0), w (fx, fy, 0, 0),
@@ -22,12 +23,13 @@
  * splat_mip_upsample: level l's image, bilinearly, into level l - 1 (1/4 per child pixel),
  * from the top level down; level 0 is then what splat_composite reads.
  *
- * Layout: float4 images [level][layer][nh_l][nw_l], nw_l = ceil(W / 2^l) + 2 P,
- * nh_l = ceil(H / 2^l) + 2 P (P level pixels of pad on every side at every level); bins the
- * same with three float4 per pixel. lv[l] = (first pixel of level l, nw_l, nh_l, 0).
- * P >= REACH + ceil(R0 + M0 / 2) + 2: a centre lies within R0 + M0 / 2 level pixels of its
- * frame pixel and a PSF within REACH of its bin.
- * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, R0, M0 (floats), P, REACH.
+ * Layout: float4 images [level][layer][nh_l][nw_l], nw_l = ceil(W / 2^l) + 2 P_l,
+ * nh_l = ceil(H / 2^l) + 2 P_l (P_l level pixels of pad on every side); bins the same with
+ * three float4 per pixel. lv[l] = (first pixel of level l, nw_l, nh_l, P_l), P_l = 2 E_l,
+ * E_l = ceil(RL + ML / 2) + 2 the level's reach: a centre lies within RL + ML / 2 level
+ * pixels of its frame pixel and a PSF within E_l of its bin.
+ * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, and the per-level lists TR, TM, RL, ML
+ * (floats, NLEV each; TR[NLEV - 1], TM[NLEV - 1] unused).
  */
 #include "common.h"
 
@@ -43,18 +45,16 @@
 #ifndef NLEV
 #define NLEV 1
 #endif
-#ifndef R0
-#define R0 8.0f
+#ifndef TR
+#define TR 8.0f
+#define TM 32.0f
+#define RL 8.0f
+#define ML 32.0f
 #endif
-#ifndef M0
-#define M0 32.0f
-#endif
-#ifndef REACH
-#define REACH 26
-#endif
-#ifndef P
-#define P 52
-#endif
+__constant float mip_tr[NLEV] = {TR};
+__constant float mip_tm[NLEV] = {TM};
+__constant float mip_rl[NLEV] = {RL};
+__constant float mip_ml[NLEV] = {ML};
 
 #define MISS_DEPTH 1e30f
 /* Every helper is always_inline: at their sizes PoCL's inliner keeps some as calls, and a
@@ -86,7 +86,7 @@ __attribute__((always_inline)) inline size_t mip_index(__global const int4 *lv, 
                         const int qy)
 {
     const int4 g = lv[l];
-    return (size_t)g.x + ((size_t)layer * g.z + (size_t)(qy + P)) * g.y + (size_t)(qx + P);
+    return (size_t)g.x + ((size_t)layer * g.z + (size_t)(qy + g.w)) * g.y + (size_t)(qx + g.w);
 }
 
 /* Sample k's bin (its pixel index, -1: none) and what it adds there: r0..r8 = w (r, g, b, 1,
@@ -108,16 +108,19 @@ __attribute__((always_inline)) inline int mip_record(const int k, MIP_BIN_ARGS, 
     my = motion[2 * k + 1];
 #endif
     const float len = sqrt(mx * mx + my * my);
-    /* l = ceil(log2(q)) from q's exponent bits (q >= 1 is normal or inf; ilogb and log2
-     * are not vectorised by PoCL): q = m 2^e, m in [1, 2) */
-    const float q = fmax(fmax(r * (1.0f / R0), len * (1.0f / M0)), 1.0f);
-    const uint qb = as_uint(q);
-    const int e = (int)((qb >> 23) & 0xffu) - 127;
-    const int l = min(e + ((qb & 0x7fffffu) != 0u ? 1 : 0), NLEV - 1);
+    /* the lowest level that holds the PSF (the thresholds increase: a count) */
+    int l = 0;
+    float rl = mip_rl[0], ml = mip_ml[0];
+    for (int j = 0; j + 1 < NLEV; ++j) {
+        const int up = r > mip_tr[j] || len > mip_tm[j];
+        l += up;
+        rl = up ? mip_rl[j + 1] : rl;
+        ml = up ? mip_ml[j + 1] : ml;
+    }
     const float s = (float)(1 << l), inv_s = 1.0f / s;
     /* beyond the top level: the largest PSF the level holds, re-centred by it */
-    const float cs = r * inv_s > R0 ? R0 * s / r : 1.0f;
-    const float ms = len * inv_s > M0 ? M0 * s / len : 1.0f;
+    const float cs = r * inv_s > rl ? rl * s / r : 1.0f;
+    const float ms = len * inv_s > ml ? ml * s / len : 1.0f;
     const float cc = coc * cs;
     float cx = position[2 * k] - cc * lens[2 * k];
     float cy = position[2 * k + 1] - cc * lens[2 * k + 1];
@@ -133,10 +136,11 @@ __attribute__((always_inline)) inline int mip_record(const int k, MIP_BIN_ARGS, 
     const float fx = floor(cx), fy = floor(cy);
     const int4 g = lv[l];
     const int qx = (int)fx, qy = (int)fy;
-    /* centres beyond the pad cannot reach the frame (the host sizes P so that none of a
+    /* centres beyond the pad cannot reach the frame (the host sizes P_l so that none of a
      * valid frame's are); no early return: straight-line code vectorises */
-    const int out = qx < REACH - P || qy < REACH - P || qx >= g.y - P - REACH
-                    || qy >= g.z - P - REACH;
+    const int e = g.w / 2;  /* the level's reach */
+    const int out = qx < e - g.w || qy < e - g.w || qx >= g.y - g.w - e
+                    || qy >= g.z - g.w - e;
     const float w = 1.0f / (float)SPP, wm = w * ms * inv_s;
     *r0 = color[3 * k] * w;
     *r1 = color[3 * k + 1] * w;
@@ -257,7 +261,7 @@ __attribute__((always_inline)) inline float mip_psf(const float2 d, const float 
 }
 
 /* A bin's PSF: its weight b0, centre c (level pixels), radius, length, direction, the
- * pixels it covers [x0, x1] x [y0, y1] (within REACH of the bin), and where it is. */
+ * pixels it covers [x0, x1] x [y0, y1] (within the level's reach of the bin), and where it is. */
 typedef struct {
     float4 b0;
     float2 c, u;
@@ -286,10 +290,11 @@ __attribute__((always_inline)) inline int mip_params(const int l, const int laye
     p->u = p->len > 0.0f ? m / p->len : (float2)(1.0f, 0.0f);
     p->c = (float2)((float)qx + b2.x, (float)qy + b2.y);
     const float2 e = fabs(p->u) * (0.5f * p->len) + (float2)(p->rho + 1.0f);
-    p->x0 = max((int)floor(p->c.x - e.x), qx - REACH);
-    p->x1 = min((int)floor(p->c.x + e.x), qx + REACH);
-    p->y0 = max((int)floor(p->c.y - e.y), qy - REACH);
-    p->y1 = min((int)floor(p->c.y + e.y), qy + REACH);
+    const int reach = lv[l].w / 2;
+    p->x0 = max((int)floor(p->c.x - e.x), qx - reach);
+    p->x1 = min((int)floor(p->c.x + e.x), qx + reach);
+    p->y0 = max((int)floor(p->c.y - e.y), qy - reach);
+    p->y1 = min((int)floor(p->c.y + e.y), qy + reach);
     /* the plane integral of mip_psf (the disc pi (rho^2 + 1/12), the swept disc
      * 2 len pi (rho^2 + 1/16)), which the pixel sum matches to ~1% from rho = 3 (disc) and
      * rho = 4 (swept) on (tests/test_splat_mip.py); below, the pixels are summed. (An
@@ -305,19 +310,112 @@ __attribute__((always_inline)) inline float mip_psf_at(const mip_psf_t *p, const
     return mip_psf((float2)((float)x + 0.5f, (float)y + 0.5f) - p->c, p->rho, p->len, p->u);
 }
 
+/* The chord of row y (pixel centres at y + 1/2) through the disc of radius r at q: [lo, hi],
+ * or lo > hi. */
+__attribute__((always_inline)) inline float2 mip_chord(const float2 q, const float r,
+                                                      const int y)
+{
+    const float dy = (float)y + 0.5f - q.y;
+    if (!(r > 0.0f) || dy * dy > r * r)
+        return (float2)(1.0f, -1.0f);
+    const float h = sqrt(r * r - dy * dy);
+    return (float2)(q.x - h, q.x + h);
+}
+
+/* What row y of p's PSF covers: pixels [*xa, *xb] (a superset of the non-zero ones, within
+ * the PSF's box) and inside it [*ia, *ib] where the PSF is the constant *vin (empty:
+ * *ia > *ib): the disc's inner chord (rho - 1/2: value 1), or for the swept disc the pixels
+ * whose discs of radius rho - 1/4 hold the whole segment (value 2 len). The rest is
+ * evaluated pixel by pixel. */
+__attribute__((always_inline)) inline void mip_row(const mip_psf_t *p, const int y, int *xa,
+                                                  int *xb, int *ia, int *ib, float *vin)
+{
+    float2 out = (float2)((float)p->x0 + 0.5f, (float)p->x1 + 0.5f), in = (float2)(1.0f, -1.0f);
+    *vin = 0.0f;
+    if (p->len < 0.5f) {
+        if (p->rho >= 1.5f) {
+            out = mip_chord(p->c, p->rho + 0.5f, y);
+            in = mip_chord(p->c, p->rho - 0.5f, y);
+            *vin = 1.0f;
+        }
+    } else {
+        /* the swept disc of radius R = rho + 1/4 is convex: its row is one interval, the
+         * hull of the end discs' chords and of the band |(x - c) . n| <= R,
+         * |(x - c) . u| <= len / 2 between them */
+        const float2 e = (0.5f * p->len) * p->u;
+        const float R = p->rho + 0.25f, dy = (float)y + 0.5f - p->c.y;
+        const float2 ca = mip_chord(p->c - e, R, y), cb = mip_chord(p->c + e, R, y);
+        float lo = INFINITY, hi = -INFINITY;
+        if (ca.x <= ca.y) { lo = ca.x; hi = ca.y; }
+        if (cb.x <= cb.y) { lo = fmin(lo, cb.x); hi = fmax(hi, cb.y); }
+        /* band, in t = x - c.x: |dy u.x - t u.y| <= R and |t u.x + dy u.y| <= len / 2 */
+        float blo = -INFINITY, bhi = INFINITY;
+        const float n0 = dy * p->u.x, m0 = dy * p->u.y, hl = 0.5f * p->len;
+        if (fabs(p->u.y) > 1e-6f) {
+            const float t1 = (n0 - R) / p->u.y, t2 = (n0 + R) / p->u.y;
+            blo = fmax(blo, fmin(t1, t2));
+            bhi = fmin(bhi, fmax(t1, t2));
+        } else if (fabs(n0) > R) {
+            bhi = -INFINITY;
+        }
+        if (fabs(p->u.x) > 1e-6f) {
+            const float t1 = (-hl - m0) / p->u.x, t2 = (hl - m0) / p->u.x;
+            blo = fmax(blo, fmin(t1, t2));
+            bhi = fmin(bhi, fmax(t1, t2));
+        } else if (fabs(m0) > hl) {
+            bhi = -INFINITY;
+        }
+        if (blo <= bhi) { lo = fmin(lo, p->c.x + blo); hi = fmax(hi, p->c.x + bhi); }
+        out = (float2)(lo, hi);
+        if (p->rho >= 0.5f) {
+            const float ri = p->rho - 0.25f;
+            const float2 ia_ = mip_chord(p->c - e, ri, y), ib_ = mip_chord(p->c + e, ri, y);
+            in = (float2)(fmax(ia_.x, ib_.x), fmin(ia_.y, ib_.y));
+            *vin = 2.0f * p->len;
+        }
+    }
+    if (!(out.x <= out.y)) {  /* the row misses the PSF */
+        *xa = p->x1 + 1;
+        *xb = p->x1;
+        *ia = *xb + 1;
+        *ib = *xb;
+        return;
+    }
+    /* pixel x's centre x + 1/2; one pixel of slack on the outer range (its value decides) */
+    *xa = max(p->x0, (int)floor(out.x - 0.5f));
+    *xb = min(p->x1, (int)floor(out.y - 0.5f) + 1);
+    *ia = *xb + 1;
+    *ib = *xb;
+    if (in.x <= in.y) {
+        *ia = max((int)ceil(in.x - 0.5f), *xa);
+        *ib = min((int)floor(in.y - 0.5f), *xb);
+    }
+}
+
 /* Draw bin (qx, qy) of `layer` at level l into img, one work-item alone. */
-__attribute__((always_inline)) inline void mip_draw_one(const int l, const int layer, const int qx, const int qy,
-                         const int atomic, __global const float *bins, __global float *img,
-                         __global const int4 *lv)
+__attribute__((always_inline)) inline void mip_draw_one(const int l, const int layer,
+                                                       const int qx, const int qy,
+                                                       const int atomic,
+                                                       __global const float *bins,
+                                                       __global float *img,
+                                                       __global const int4 *lv)
 {
     mip_psf_t p;
     if (!mip_params(l, layer, qx, qy, bins, lv, &p))
         return;
+    int xa, xb, ia, ib;
+    float vin;
     float sum = p.sum;
-    if (!p.point && !(sum > 0.0f))
-        for (int y = p.y0; y <= p.y1; ++y)
-            for (int x = p.x0; x <= p.x1; ++x)
+    if (!p.point && !(sum > 0.0f)) {
+        for (int y = p.y0; y <= p.y1; ++y) {
+            mip_row(&p, y, &xa, &xb, &ia, &ib, &vin);
+            for (int x = xa; x < ia; ++x)
                 sum += mip_psf_at(&p, x, y);
+            sum += (float)max(ib - ia + 1, 0) * vin;
+            for (int x = max(ib + 1, ia); x <= xb; ++x)
+                sum += mip_psf_at(&p, x, y);
+        }
+    }
     if (p.point || !(sum > 0.0f)) {
         mip_add4(img + p.bi * 4, p.b0, atomic);
         return;
@@ -326,40 +424,26 @@ __attribute__((always_inline)) inline void mip_draw_one(const int l, const int l
     const int4 g = lv[l];
     __global float *base = img + ((size_t)g.x + (size_t)layer * g.z * g.y) * 4;
     for (int y = p.y0; y <= p.y1; ++y) {
-        __global float *row = base + (size_t)(y + P) * g.y * 4;
-        int xa = p.x0, xb = p.x1, ia = p.x1 + 1, ib = p.x1;
-        if (p.len < 0.5f && p.rho >= 1.5f) {
-            /* a disc: only the row's chord, and inside |d| <= rho - 1/2 the PSF is 1 (a run
-             * of plain adds, which vectorises) */
-            const float dy = (float)y + 0.5f - p.c.y, ro = p.rho + 0.5f, ri = p.rho - 0.5f;
-            const float ho = sqrt(fmax(ro * ro - dy * dy, 0.0f));
-            xa = max(xa, (int)floor(p.c.x - ho - 0.5f));
-            xb = min(xb, (int)floor(p.c.x + ho - 0.5f) + 1);
-            ia = xb + 1;
-            ib = xb;
-            if (ri * ri > dy * dy) {
-                const float hi = sqrt(ri * ri - dy * dy);
-                ia = max((int)ceil(p.c.x - hi - 0.5f), xa);
-                ib = min((int)floor(p.c.x + hi - 0.5f), xb);
-            }
-        }
+        __global float *row = base + (size_t)(y + g.w) * g.y * 4;
+        mip_row(&p, y, &xa, &xb, &ia, &ib, &vin);
         for (int x = xa; x < ia; ++x) {
             const float v = mip_psf_at(&p, x, y);
             if (v > 0.0f)
-                mip_add4(row + (size_t)(x + P) * 4, v * wv, atomic);
+                mip_add4(row + (size_t)(x + g.w) * 4, v * wv, atomic);
         }
+        const float4 wi = vin * wv;
         if (atomic) {
             for (int x = ia; x <= ib; ++x)
-                mip_add4(row + (size_t)(x + P) * 4, wv, 1);
-        } else {
-            __global float4 *run = (__global float4 *)row + P;
+                mip_add4(row + (size_t)(x + g.w) * 4, wi, 1);
+        } else {  /* a run of plain adds, which vectorises */
+            __global float4 *run = (__global float4 *)row + g.w;
             for (int x = ia; x <= ib; ++x)
-                run[x] += wv;
+                run[x] += wi;
         }
         for (int x = max(ib + 1, ia); x <= xb; ++x) {
             const float v = mip_psf_at(&p, x, y);
             if (v > 0.0f)
-                mip_add4(row + (size_t)(x + P) * 4, v * wv, atomic);
+                mip_add4(row + (size_t)(x + g.w) * 4, v * wv, atomic);
         }
     }
 }
@@ -370,14 +454,15 @@ __kernel void splat_mip_draw_bins(__global const float *bins, __global float *im
 {
     const int l = get_global_id(2) / NLAYERS, layer = get_global_id(2) % NLAYERS;
     const int4 g = lv[l];
-    const int qx = get_global_id(0) - P, qy = get_global_id(1) - P;
-    if (qx >= g.y - P || qy >= g.z - P)
+    const int qx = get_global_id(0) - g.w, qy = get_global_id(1) - g.w;
+    if (qx >= g.y - g.w || qy >= g.z - g.w)
         return;
     mip_draw_one(l, layer, qx, qy, 1, bins, img, lv);
 }
 
 /* One work-item per tile of tile x tile level pixels at every level (z = level * NLAYERS +
- * layer), phases k x k with (k - 1) tile > 2 REACH - 1: no two work-items of a launch
+ * layer), phases k x k with (k - 1) tile > 2 E - 1, E the largest level reach: no two
+ * work-items of a launch
  * write one pixel, plain adds in a fixed order. Tiles cover the padded grid. */
 __kernel void splat_mip_draw_tiles(__global const float *bins, __global float *img,
                                    __global const int4 *lv, const int tile, const int k,
@@ -387,26 +472,34 @@ __kernel void splat_mip_draw_tiles(__global const float *bins, __global float *i
     const int4 g = lv[l];
     const int x0 = (k * get_global_id(0) + phase_x) * tile;
     const int y0 = (k * get_global_id(1) + phase_y) * tile;
-    /* bins within REACH of the border hold nothing (mip_record skips them) */
-    if (x0 >= g.y - REACH || y0 >= g.z - REACH)
+    /* bins within the reach of the border hold nothing (mip_record skips them) */
+    const int e = g.w / 2;
+    if (x0 >= g.y - e || y0 >= g.z - e)
         return;
-    const int x1 = min(x0 + tile, g.y - REACH), y1 = min(y0 + tile, g.z - REACH);
-    for (int y = max(y0, REACH); y < y1; ++y)
-        for (int x = max(x0, REACH); x < x1; ++x)
-            mip_draw_one(l, layer, x - P, y - P, 0, bins, img, lv);
+    const int x1 = min(x0 + tile, g.y - e), y1 = min(y0 + tile, g.z - e);
+    const int xs = max(x0, e);
+    for (int y = max(y0, e); y < y1; ++y) {
+        /* most bins are empty (a layer covers part of the frame): a tight scan of their
+         * weights first */
+        __global const float *w = bins + mip_index(lv, l, layer, xs - g.w, y - g.w) * 12 + 3;
+        for (int x = xs; x < x1; ++x)
+            if (w[(size_t)(x - xs) * 12] > 0.0f)
+                mip_draw_one(l, layer, x - g.w, y - g.w, 0, bins, img, lv);
+    }
 }
 
 /* Level l's image, bilinearly, added into level l - 1: one work-item per padded pixel of
  * level l - 1 (z = layer). Level-l pixel i (padded) has its centre at child coordinate
- * 2 (i - P) + 1 - 0.5 + P; a child pixel j reads its parent at (j - P) / 2 - 0.25 + P. */
+ * 2 (i - P_l) + 1/2 + P_{l-1}; a child pixel j reads its parent at
+ * (j - P_{l-1}) / 2 - 1/4 + P_l. */
 __kernel void splat_mip_upsample(__global float *img, __global const int4 *lv, const int l)
 {
     const int x = get_global_id(0), y = get_global_id(1), layer = get_global_id(2);
     const int4 gc = lv[l - 1], gp = lv[l];
     if (x >= gc.y || y >= gc.z)
         return;
-    const float ux = 0.5f * (float)(x - P) - 0.25f + (float)P;
-    const float uy = 0.5f * (float)(y - P) - 0.25f + (float)P;
+    const float ux = 0.5f * (float)(x - gc.w) - 0.25f + (float)gp.w;
+    const float uy = 0.5f * (float)(y - gc.w) - 0.25f + (float)gp.w;
     const float fx0 = floor(ux), fy0 = floor(uy);
     const float fx = ux - fx0, fy = uy - fy0;
     const int ix = (int)fx0, iy = (int)fy0;

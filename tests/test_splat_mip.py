@@ -110,9 +110,13 @@ def test_analytic_psf_sum_matches_the_pixel_sum(rho, length):
 
 def test_levels_cover_the_blur():
     g = MipGeometry(640, 360, 4, 8.0, max_coc=60.0, max_motion=300.0)
-    # 60 / 8 -> 3 levels up (s = 8), 300 / 32 -> 4 levels up (s = 16)
-    assert g.nlev == 5 and not g.clamped
-    assert g.levels[1, 1] == 320 + 2 * g.pad and g.levels[4, 2] == 23 + 2 * g.pad
+    # radii 8, 11.3, 16, 22.6 level pixels: CoC 60 fits level 2 (16 * 4 = 64), motion 300
+    # level 3 (4 * 22.6 * 8 = 724; level 2 holds 256)
+    assert g.nlev == 4 and not g.clamped
+    assert_close(g.rl, [8.0, 8.0 * 2**0.5, 16.0, 8.0 * 2**1.5], rtol=1e-6, what="radii")
+    pads = g.levels[:, 3]
+    assert pads[0] == 2 * (8 + 16 + 2) and np.all(np.diff(pads) > 0)
+    assert g.levels[1, 1] == 320 + 2 * pads[1] and g.levels[3, 2] == 45 + 2 * pads[3]
     huge = MipGeometry(64, 64, 1, 1.0, max_coc=1e12, max_motion=0.0)
     assert huge.nlev == MAX_LEVELS and huge.clamped
 

@@ -381,7 +381,8 @@ class SplatPipeline(Pipeline):
             g = self.geometry
             return {"method": "splat", "plan": "mip", "psf": self.psf,
                     "psf_source": self.psf_source, "mode": "mip", "layers": self.layers,
-                    "mip_radius": g.r0, "mip_motion": g.m0, "levels": g.nlev, "pad": g.pad,
+                    "mip_radius": g.r0, "levels": g.nlev,
+                    "level_radii": [round(float(r), 3) for r in g.rl], "pad": g.pad,
                     "reach": g.reach, "integrate": False, "has_motion": self.has_motion,
                     "clamped": self.clamped, "scatter": self.mip.scatter,
                     "deterministic": self.deterministic,

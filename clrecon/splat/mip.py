@@ -33,11 +33,24 @@ from .splat import Splat
 
 #: motion length per level, in multiples of the radius: M0 = MOTION_RATIO * R0
 MOTION_RATIO = 4.0
+#: the coarse levels' radius grows as 2^(l/2) up to this factor (:func:`level_radii`)
+RADIUS_GROWTH = 4.0
 #: at most this many levels (2^15 px level pixels: beyond any frame's blur)
 MAX_LEVELS = 16
 #: knob range of mip_radius (level pixels)
 MIN_RADIUS, MAX_RADIUS = 1.0, 32.0
 PHASES = 4
+
+
+def level_radii(radius: float, levels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per level, the largest PSF radius and length it holds (level pixels, float32):
+    ``RL = radius * min(2^(l/2), RADIUS_GROWTH)``, ``ML = MOTION_RATIO * RL``. A coarse
+    level has few bins (``1/4^l`` of the pixels), so it can resolve its PSFs more finely at
+    little cost: per frame pixel a level's cost is at most ``pi RL^2 / 4^l``, falling with
+    ``l``."""
+    lv = np.arange(levels, dtype=np.float64)
+    rl = (float(radius) * np.minimum(2.0 ** (lv / 2), RADIUS_GROWTH)).astype(np.float32)
+    return rl, (np.float32(MOTION_RATIO) * rl).astype(np.float32)
 
 
 class MipGeometry:
@@ -48,30 +61,43 @@ class MipGeometry:
                  max_motion: float):
         self.width, self.height, self.layers = int(width), int(height), int(layers)
         self.r0 = float(radius)
-        self.m0 = MOTION_RATIO * self.r0
-        span = self.r0 + 0.5 * self.m0
-        self.reach = int(math.ceil(span)) + 2
-        self.pad = self.reach + int(math.ceil(span)) + 2
-        need = max(max_coc / self.r0, max_motion / self.m0, 1.0)
-        top = int(math.ceil(math.log2(min(need, 2.0**40)) - 1e-6))
-        self.nlev = min(max(top, 0) + 1, MAX_LEVELS)
-        self.clamped = top + 1 > MAX_LEVELS
-        s = 2 ** (self.nlev - 1)
+        rl, ml = level_radii(self.r0, MAX_LEVELS)
+        scale = 2.0 ** np.arange(MAX_LEVELS)
+        # a level's thresholds in frame pixels; the frame needs the lowest level whose
+        # thresholds hold its largest blur
+        tr, tm = (rl * scale).astype(np.float32), (ml * scale).astype(np.float32)
+        fits = np.nonzero((tr >= max_coc) & (tm >= max_motion))[0]
+        self.nlev = int(fits[0]) + 1 if len(fits) else MAX_LEVELS
+        self.clamped = not len(fits)
+        n = self.nlev
+        self.rl, self.ml, self.tr, self.tm = rl[:n], ml[:n], tr[:n], tm[:n]
+        # per level: reach E (a PSF within E level pixels of its bin) and pad P = 2 E (a
+        # centre lies within RL + ML / 2 level pixels of its frame pixel)
+        self.reaches = [int(math.ceil(float(r) + 0.5 * float(m))) + 2 for r, m in zip(rl, ml)]
+        self.reaches = self.reaches[:n]
+        self.reach = max(self.reaches)
+        s = 2 ** (n - 1)
         # how far a bin can lie from its sample's pixel (frame pixels): the re-centring
         # (clamped at the top level) plus one level pixel of rounding
-        self.shift = min(max_coc, self.r0 * s) + 0.5 * min(max_motion, self.m0 * s) + s + 1
+        self.shift = (min(max_coc, float(rl[n - 1]) * s)
+                      + 0.5 * min(max_motion, float(ml[n - 1]) * s) + s + 1)
         rows, first = [], 0
-        for level in range(self.nlev):
-            nw = -(-self.width // 2**level) + 2 * self.pad
-            nh = -(-self.height // 2**level) + 2 * self.pad
-            rows.append((first, nw, nh, 0))
+        for level in range(n):
+            pad = 2 * self.reaches[level]
+            nw = -(-self.width // 2**level) + 2 * pad
+            nh = -(-self.height // 2**level) + 2 * pad
+            rows.append((first, nw, nh, pad))
             first += self.layers * nw * nh
         self.levels = np.asarray(rows, np.int32)
         self.pixels = first
+        self.pad = int(self.levels[0, 3])  # level 0's, what the composite reads
 
     def defines(self) -> dict:
-        return {"NLEV": self.nlev, "R0": f"{self.r0!r}f", "M0": f"{self.m0!r}f",
-                "REACH": self.reach, "P": self.pad}
+        def floats(a):
+            return ",".join(f"{float(v)!r}f" for v in a)
+
+        return {"NLEV": self.nlev, "TR": floats(self.tr), "TM": floats(self.tm),
+                "RL": floats(self.rl), "ML": floats(self.ml)}
 
     @property
     def image_bytes(self) -> int:
@@ -137,7 +163,8 @@ class MipSplat:
 
     def draw(self, queue, bins: cl.Buffer, img: cl.Buffer, wait_for=None) -> cl.Event:
         g = self.geo
-        nw, nh = int(g.levels[0, 1]), int(g.levels[0, 2])
+        # the widest level (a coarse level's larger pad can outgrow level 0 on tiny frames)
+        nw, nh = int(g.levels[:, 1].max()), int(g.levels[:, 2].max())
         z = g.nlev * g.layers
         self.events = []
         if self.scatter == "atomic":

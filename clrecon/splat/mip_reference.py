@@ -14,13 +14,6 @@ MISS_DEPTH = np.float32(1e30)
 F = np.float32
 
 
-def _levels(q: np.ndarray, nlev: int) -> np.ndarray:
-    """``ceil(log2(q))`` of float32 ``q >= 1`` from its exponent bits, capped at nlev - 1."""
-    bits = q.astype(np.float32).view(np.uint32)
-    e = ((bits >> 23) & 0xFF).astype(np.int64) - 127
-    return np.minimum(e + ((bits & 0x7FFFFF) != 0), nlev - 1)
-
-
 def bins(buf, geo: MipGeometry, inv_far: float, layer_scale: float,
          has_motion: bool) -> np.ndarray:
     """The bin images ``(pixels, 12)`` (every level and layer, the kernels' layout)."""
@@ -33,14 +26,15 @@ def bins(buf, geo: MipGeometry, inv_far: float, layer_scale: float,
     mot = buf.motion.reshape(-1, 2).astype(np.float32) if has_motion else \
         np.zeros((len(z), 2), np.float32)
     ln = np.sqrt(mot[:, 0] * mot[:, 0] + mot[:, 1] * mot[:, 1]).astype(np.float32)
-    r0, m0 = F(geo.r0), F(geo.m0)
-    q = np.maximum(np.maximum(r * (F(1) / r0), ln * (F(1) / m0)), F(1))
-    lev = _levels(q, geo.nlev)
+    lev = np.zeros(len(z), np.int64)
+    for j in range(geo.nlev - 1):  # the lowest level whose thresholds hold the PSF
+        lev += (r > geo.tr[j]) | (ln > geo.tm[j])
+    rl, ml = geo.rl[lev], geo.ml[lev]
     s = (2.0 ** lev).astype(np.float32)
     inv_s = (F(1) / s).astype(np.float32)
     with np.errstate(divide="ignore", invalid="ignore"):
-        cs = np.where(r * inv_s > r0, r0 * s / r, F(1)).astype(np.float32)
-        ms = np.where(ln * inv_s > m0, m0 * s / ln, F(1)).astype(np.float32)
+        cs = np.where(r * inv_s > rl, rl * s / r, F(1)).astype(np.float32)
+        ms = np.where(ln * inv_s > ml, ml * s / ln, F(1)).astype(np.float32)
     cc = coc * cs
     pos = buf.position.reshape(-1, 2).astype(np.float32)
     lens = buf.lens.reshape(-1, 2).astype(np.float32)
@@ -56,8 +50,8 @@ def bins(buf, geo: MipGeometry, inv_far: float, layer_scale: float,
     fq = np.floor(c)
     qx, qy = fq[:, 0].astype(np.int64), fq[:, 1].astype(np.int64)
     lv = geo.levels.astype(np.int64)
-    nw, nh, first = lv[lev, 1], lv[lev, 2], lv[lev, 0]
-    p, reach = geo.pad, geo.reach
+    nw, nh, first, p = lv[lev, 1], lv[lev, 2], lv[lev, 0], lv[lev, 3]
+    reach = p // 2
     keep = (qx >= reach - p) & (qy >= reach - p) & (qx < nw - p - reach) & (qy < nh - p - reach)
     idx = first + (layer * nh + qy + p) * nw + qx + p
     w = 1.0 / buf.spp
@@ -95,8 +89,8 @@ def psf(dx: np.ndarray, dy: np.ndarray, rho: float, length: float, u) -> np.ndar
 def draw(b: np.ndarray, geo: MipGeometry) -> np.ndarray:
     """The level images ``(pixels, 4)`` drawn from the bins ``b``."""
     img = np.zeros((geo.pixels, 4))
-    p, reach = geo.pad, geo.reach
-    for first, nw, nh, _ in geo.levels.astype(np.int64):
+    for first, nw, nh, p in geo.levels.astype(np.int64):
+        reach = p // 2
         for layer in range(geo.layers):
             base = first + layer * nh * nw
             blk = b[base:base + nh * nw].reshape(nh, nw, 12)
@@ -136,16 +130,15 @@ def draw(b: np.ndarray, geo: MipGeometry) -> np.ndarray:
 def upsample(img: np.ndarray, geo: MipGeometry) -> np.ndarray:
     """Each level into the one below it, bilinearly (1/4 per child pixel), top down."""
     img = img.copy()
-    p = geo.pad
     lv = geo.levels.astype(np.int64)
     for level in range(geo.nlev - 1, 0, -1):
-        fp, wp, hp, _ = lv[level]
-        fc, wc, hc, _ = lv[level - 1]
+        fp, wp, hp, pp = lv[level]
+        fc, wc, hc, pc = lv[level - 1]
         for layer in range(geo.layers):
             par = img[fp + layer * hp * wp:fp + (layer + 1) * hp * wp].reshape(hp, wp, 4)
             par = np.pad(par, ((1, 1), (1, 1), (0, 0)))  # zero outside
-            u = 0.5 * (np.arange(wc) - p) - 0.25 + p
-            t = 0.5 * (np.arange(hc) - p) - 0.25 + p
+            u = 0.5 * (np.arange(wc) - pc) - 0.25 + pp
+            t = 0.5 * (np.arange(hc) - pc) - 0.25 + pp
             ix, iy = np.floor(u).astype(np.int64), np.floor(t).astype(np.int64)
             fx, fy = (u - ix)[None, :, None], (t - iy)[:, None, None]
             ix = np.clip(ix, -1, wp) + 1
