@@ -134,6 +134,15 @@ def test_cli_pinhole_synthesis_with_splat_flags(tmp_path, capsys):
                  "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["mode"] == "dense" and rep["psf"] == "combined"  # bokeh moves
+    # the default is the mip plan; --mip-radius sets it, 0 takes the paper's plan
+    for flags, mode in (([], "mip"), (["--mip-radius", "4"], "mip"),
+                        (["--mip-radius", "0"], "sparse")):
+        assert main(["reconstruct", str(pin), "--method", "splat", *flags, "-o", str(out),
+                     "--json"]) == 0
+        rep = json.loads(capsys.readouterr().out)
+        assert rep["mode"] == mode, (flags, rep["mode"])
+        if flags and mode == "mip":
+            assert rep["mip_radius"] == 4.0
 
 
 @pytest.mark.parametrize("knobs", [dict(psf="gauss"), dict(layers=0), dict(pyramid="f9"),
