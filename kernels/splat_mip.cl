@@ -274,7 +274,7 @@ typedef struct {
  * is the bin's pixel itself; sum is the PSF's analytic sum, or 0 where the pixels must be
  * summed (small radii). */
 __attribute__((always_inline)) inline int mip_params(const int l, const int layer, const int qx, const int qy,
-                      __global const float *bins, __global const int4 *lv, mip_psf_t *p)
+                      __global float *bins, __global const int4 *lv, mip_psf_t *p)
 {
     p->bi = mip_index(lv, l, layer, qx, qy);
     p->b0 = vload4(0, bins + p->bi * 12);
@@ -283,6 +283,10 @@ __attribute__((always_inline)) inline int mip_params(const int l, const int laye
     const float iw = 1.0f / p->b0.w;
     const float4 b1 = vload4(0, bins + p->bi * 12 + 4) * iw;
     const float4 b2 = vload4(0, bins + p->bi * 12 + 8) * iw;
+    /* the bin is consumed: zeroed for the next frame (the host then skips its clear) */
+    vstore4((float4)(0.0f), 0, bins + p->bi * 12);
+    vstore4((float4)(0.0f), 0, bins + p->bi * 12 + 4);
+    vstore4((float4)(0.0f), 0, bins + p->bi * 12 + 8);
     const float2 m = (float2)(b1.y, b1.z);
     p->len = length(m);
     p->point = b1.x < 0.5f && p->len < 0.5f;
@@ -396,7 +400,7 @@ __attribute__((always_inline)) inline void mip_row(const mip_psf_t *p, const int
 __attribute__((always_inline)) inline void mip_draw_one(const int l, const int layer,
                                                        const int qx, const int qy,
                                                        const int atomic,
-                                                       __global const float *bins,
+                                                       __global float *bins,
                                                        __global float *img,
                                                        __global const int4 *lv)
 {
@@ -449,7 +453,7 @@ __attribute__((always_inline)) inline void mip_draw_one(const int l, const int l
 }
 
 /* One work-item per bin (x, y of the widest level, z = level * NLAYERS + layer), atomic. */
-__kernel void splat_mip_draw_bins(__global const float *bins, __global float *img,
+__kernel void splat_mip_draw_bins(__global float *bins, __global float *img,
                                   __global const int4 *lv)
 {
     const int l = get_global_id(2) / NLAYERS, layer = get_global_id(2) % NLAYERS;
@@ -464,7 +468,7 @@ __kernel void splat_mip_draw_bins(__global const float *bins, __global float *im
  * layer), phases k x k with (k - 1) tile > 2 E - 1, E the largest level reach: no two
  * work-items of a launch
  * write one pixel, plain adds in a fixed order. Tiles cover the padded grid. */
-__kernel void splat_mip_draw_tiles(__global const float *bins, __global float *img,
+__kernel void splat_mip_draw_tiles(__global float *bins, __global float *img,
                                    __global const int4 *lv, const int tile, const int k,
                                    const int phase_x, const int phase_y)
 {
@@ -492,11 +496,15 @@ __kernel void splat_mip_draw_tiles(__global const float *bins, __global float *i
  * level l - 1 (z = layer). Level-l pixel i (padded) has its centre at child coordinate
  * 2 (i - P_l) + 1/2 + P_{l-1}; a child pixel j reads its parent at
  * (j - P_{l-1}) / 2 - 1/4 + P_l. */
-__kernel void splat_mip_upsample(__global float *img, __global const int4 *lv, const int l)
+__kernel void splat_mip_upsample(__global float *img, __global const int4 *lv, const int l,
+                                 const int margin)
 {
-    const int x = get_global_id(0), y = get_global_id(1), layer = get_global_id(2);
+    /* only what is read on: level l - 1's frame region and `margin` pixels around it (0 for
+     * level 0, what the composite reads; the next upsample reads within 3 of its frame) */
     const int4 gc = lv[l - 1], gp = lv[l];
-    if (x >= gc.y || y >= gc.z)
+    const int x = get_global_id(0) + gc.w - margin, y = get_global_id(1) + gc.w - margin;
+    const int layer = get_global_id(2);
+    if (x >= gc.y - gc.w + margin || y >= gc.z - gc.w + margin)
         return;
     const float ux = 0.5f * (float)(x - gc.w) - 0.25f + (float)gp.w;
     const float uy = 0.5f * (float)(y - gc.w) - 0.25f + (float)gp.w;

@@ -235,18 +235,31 @@ class SplatPipeline(Pipeline):
         temps = {"mip_image": geo.image_bytes, "mip_bins": geo.bin_bytes,
                  "ring": self.layers * 16}
 
+        # the draw pass zeroes every bin it consumes, so the pipeline's own bins are clean
+        # after a frame and their clear (a fifth of the frame's bytes) is skipped; bins an
+        # embedder passes, or ours after a frame that stopped between bin and draw, are
+        # cleared
+        self._clean_bins: set[int] = set()
+
         def clear(queue, f, wait):
+            keys = ["mip_image"]
+            if f.buffers["mip_bins"].int_ptr not in self._clean_bins:
+                keys.append("mip_bins")
             return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
                                                      temps[k], wait_for=wait))
-                    for k in ("mip_image", "mip_bins")]
+                    for k in keys]
 
         def bin_(queue, f, wait):
             inv_far, scale = _layer_params(f.info, self.layers)
+            self._clean_bins.discard(f.buffers["mip_bins"].int_ptr)
             self.mip.bin(queue, f.samples, inv_far, scale, f.buffers["mip_bins"], wait)
             return self.mip.events
 
         def draw(queue, f, wait):
-            self.mip.draw(queue, f.buffers["mip_bins"], f.buffers["mip_image"], wait)
+            bins = f.buffers["mip_bins"]
+            self.mip.draw(queue, bins, f.buffers["mip_image"], wait)
+            if self._own.get("mip_bins") is bins:
+                self._clean_bins.add(bins.int_ptr)
             return self.mip.events
 
         def upsample(queue, f, wait):

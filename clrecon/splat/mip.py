@@ -40,6 +40,10 @@ MAX_LEVELS = 16
 #: knob range of mip_radius (level pixels)
 MIN_RADIUS, MAX_RADIUS = 1.0, 32.0
 PHASES = 4
+#: level pixels around a level's frame region that the upsampling into it fills: a child
+#: frame pixel reads its parent within 1 pixel of the parent's frame region, and the margin
+#: m of the level below needs ceil((m + 1) / 2) + 1 <= 3 here
+UP_MARGIN = 3
 
 
 def level_radii(radius: float, levels: int) -> tuple[np.ndarray, np.ndarray]:
@@ -195,9 +199,12 @@ class MipSplat:
         self.events = []
         ev = None
         for level in range(g.nlev - 1, 0, -1):
-            nw, nh = int(g.levels[level - 1, 1]), int(g.levels[level - 1, 2])
-            self.up_kernel.set_args(img, self.levels, np.int32(level))
-            ev = cl.enqueue_nd_range_kernel(queue, self.up_kernel, (nw, nh, g.layers), None,
+            # the child's frame region and a margin (3 holds what the next level down reads)
+            margin = 0 if level == 1 else UP_MARGIN
+            _, nw, nh, pad = (int(v) for v in g.levels[level - 1])
+            gx, gy = nw - 2 * pad + 2 * margin, nh - 2 * pad + 2 * margin
+            self.up_kernel.set_args(img, self.levels, np.int32(level), np.int32(margin))
+            ev = cl.enqueue_nd_range_kernel(queue, self.up_kernel, (gx, gy, g.layers), None,
                                             wait_for=wait_for)
             self.events.append(("splat_mip_upsample", ev))
             wait_for = [ev]
