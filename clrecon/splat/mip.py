@@ -29,7 +29,7 @@ import pyopencl as cl
 
 from ..device import get_kernel
 from ..pipeline import DeviceSamples
-from .splat import Splat
+from .splat import Splat, owner_phases
 
 #: motion length per level, in multiples of the radius: M0 = MOTION_RATIO * R0
 MOTION_RATIO = 4.0
@@ -151,18 +151,14 @@ class MipSplat:
         k, tile = PHASES, self.bin_tile
         nx, ny = -(-w // tile), -(-h // tile)
         evs = wait_for
-        for py in range(k):
-            for px in range(k):
-                gx, gy = -(-(nx - px) // k), -(-(ny - py) // k)
-                if gx <= 0 or gy <= 0:
-                    continue
-                self.bin_kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(k),
-                                         np.int32(px), np.int32(py))
-                # one work-item per work-group: the tiles spread over the compute units
-                ev = cl.enqueue_nd_range_kernel(queue, self.bin_kernel, (gx, gy), (1, 1),
-                                                wait_for=evs)
-                self.events.append(("splat_mip_bin", ev))
-                evs = [ev]
+        for px, py, gx, gy in owner_phases(nx, ny, k):
+            self.bin_kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(k),
+                                     np.int32(px), np.int32(py))
+            # one work-item per work-group: the tiles spread over the compute units
+            ev = cl.enqueue_nd_range_kernel(queue, self.bin_kernel, (gx, gy), (1, 1),
+                                            wait_for=evs)
+            self.events.append(("splat_mip_bin", ev))
+            evs = [ev]
         return self.events[-1][1]
 
     def draw(self, queue, bins: cl.Buffer, img: cl.Buffer, wait_for=None) -> cl.Event:
@@ -181,17 +177,13 @@ class MipSplat:
         tile = max((2 * g.reach - 1) // (k - 1) + 1, 8)
         nx, ny = -(-nw // tile), -(-nh // tile)
         evs = wait_for
-        for py in range(k):
-            for px in range(k):
-                gx, gy = -(-(nx - px) // k), -(-(ny - py) // k)
-                if gx <= 0 or gy <= 0:
-                    continue
-                self.draw_kernel.set_args(bins, img, self.levels, np.int32(tile), np.int32(k),
-                                          np.int32(px), np.int32(py))
-                ev = cl.enqueue_nd_range_kernel(queue, self.draw_kernel, (gx, gy, z), None,
-                                                wait_for=evs)
-                self.events.append(("splat_mip_draw", ev))
-                evs = [ev]
+        for px, py, gx, gy in owner_phases(nx, ny, k):
+            self.draw_kernel.set_args(bins, img, self.levels, np.int32(tile), np.int32(k),
+                                      np.int32(px), np.int32(py))
+            ev = cl.enqueue_nd_range_kernel(queue, self.draw_kernel, (gx, gy, z), None,
+                                            wait_for=evs)
+            self.events.append(("splat_mip_draw", ev))
+            evs = [ev]
         return self.events[-1][1]
 
     def upsample(self, queue, img: cl.Buffer, wait_for=None) -> cl.Event | None:

@@ -26,6 +26,17 @@ SCATTERS = ("atomic", "tiles")
 MIN_TILE = 16
 
 
+def owner_phases(nx: int, ny: int, k: int):
+    """The ``k x k`` phases of an ``nx x ny`` grid of owner tiles: ``(px, py, gx, gy)``, the
+    phase and how many of its tiles lie along x and y (tiles ``k i + px``, ``k j + py``);
+    phases without a tile are left out."""
+    for py in range(k):
+        for px in range(k):
+            gx, gy = -(-(nx - px) // k), -(-(ny - py) // k)
+            if gx > 0 and gy > 0:
+                yield px, py, gx, gy
+
+
 class Splat:
     """``kernels/splat.cl``: ``splat_samples`` (atomic) or ``splat_tiles`` (owner tiles)."""
 
@@ -100,18 +111,13 @@ class Splat:
         nx, ny = -(-w // tile), -(-h // tile)
         self.events = []
         evs = wait_for
-        for py in range(k):
-            for px in range(k):
-                gx, gy = -(-(nx - px) // k), -(-(ny - py) // k)
-                if gx <= 0 or gy <= 0:
-                    continue
-                self.kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(tile),
-                                     np.int32(k), np.int32(px), np.int32(py))
-                # tiles of one phase never write the same pixel: any local size is safe
-                ev = cl.enqueue_nd_range_kernel(queue, self.kernel, (gx, gy), None,
-                                                wait_for=evs)
-                self.events.append(ev)
-                evs = [ev]
+        for px, py, gx, gy in owner_phases(nx, ny, k):
+            self.kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(tile),
+                                 np.int32(k), np.int32(px), np.int32(py))
+            # tiles of one phase never write the same pixel: any local size is safe
+            ev = cl.enqueue_nd_range_kernel(queue, self.kernel, (gx, gy), None, wait_for=evs)
+            self.events.append(ev)
+            evs = [ev]
         return self.events[-1]
 
     def color_bound(self, queue, samples: DeviceSamples, bound: cl.Buffer,
