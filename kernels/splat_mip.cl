@@ -191,29 +191,27 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
         mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
 }
 
-#ifndef BIN_TILE
-#define BIN_TILE 16
-#endif
 #define ROW_MAX 512
-/* One work-item (and work-group) per owner tile of BIN_TILE x BIN_TILE frame pixels: the
- * host launches the k x k phases in turn with (k - 1) BIN_TILE > 2 R - 1, R bounding how
+/* One work-item (and work-group) per owner tile of tile x tile frame pixels: the
+ * host launches the k x k phases in turn with (k - 1) tile > 2 R - 1, R bounding how
  * far from its pixel a sample's bin lies (frame pixels), so no two work-items of a launch
  * write the same bin. Along each row of its tile, ROW_MAX samples at a time: the records
  * go into local memory in one loop over contiguous samples, which the compiler vectorises
  * (the same arithmetic interleaved with the adds ran ~10x slower on PoCL), then are added
  * in order: plain adds, a fixed order (reproducible). */
 __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int height,
-                                  const int k, const int phase_x, const int phase_y)
+                                  const int tile, const int k, const int phase_x,
+                                  const int phase_y)
 {
     __local int ridx[ROW_MAX];
     __local float r0[ROW_MAX], r1[ROW_MAX], r2[ROW_MAX], r3[ROW_MAX], r4[ROW_MAX],
         r5[ROW_MAX], r6[ROW_MAX], r7[ROW_MAX], r8[ROW_MAX];
-    const int x0 = (k * (int)get_group_id(0) + phase_x) * BIN_TILE;
-    const int y0 = (k * (int)get_group_id(1) + phase_y) * BIN_TILE;
+    const int x0 = (k * (int)get_group_id(0) + phase_x) * tile;
+    const int y0 = (k * (int)get_group_id(1) + phase_y) * tile;
     if (x0 >= width || y0 >= height)
         return;
-    const int row = (min(x0 + BIN_TILE, width) - x0) * SPP;
-    for (int y = y0; y < min(y0 + BIN_TILE, height); ++y)
+    const int row = (min(x0 + tile, width) - x0) * SPP;
+    for (int y = y0; y < min(y0 + tile, height); ++y)
         for (int c = 0; c < row; c += ROW_MAX) {
             const int first = (y * width + x0) * SPP + c, n = min(ROW_MAX, row - c);
             for (int j = 0; j < n; ++j) {

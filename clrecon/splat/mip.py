@@ -119,11 +119,11 @@ class MipSplat:
     def __init__(self, context: cl.Context, spp: int, has_motion: bool, geometry: MipGeometry,
                  scatter: str):
         self.geo, self.scatter, self.spp = geometry, scatter, int(spp)
-        # the bin pass's owner tile (a compile-time constant of its kernels)
+        # the bin pass's owner tile (a kernel argument: one program serves every frame size)
         self.bin_tile = min(Splat.tile_size(0, geometry.shift, PHASES),
                             max(geometry.width, geometry.height))
         defines = {"SPP": spp, "HAS_MOTION": int(has_motion), "NLAYERS": geometry.layers,
-                   "BIN_TILE": self.bin_tile, **geometry.defines()}
+                   **geometry.defines()}
         names = ("splat_mip_bin_tiles", "splat_mip_draw_tiles") if scatter == "tiles" else \
             ("splat_mip_bin_samples", "splat_mip_draw_bins")
         self.bin_kernel = get_kernel(context, "splat_mip", names[0], defines)
@@ -152,8 +152,8 @@ class MipSplat:
         nx, ny = -(-w // tile), -(-h // tile)
         evs = wait_for
         for px, py, gx, gy in owner_phases(nx, ny, k):
-            self.bin_kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(k),
-                                     np.int32(px), np.int32(py))
+            self.bin_kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(tile),
+                                     np.int32(k), np.int32(px), np.int32(py))
             # one work-item per work-group: the tiles spread over the compute units
             ev = cl.enqueue_nd_range_kernel(queue, self.bin_kernel, (gx, gy), (1, 1),
                                             wait_for=evs)
