@@ -36,6 +36,11 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _names(text: str) -> list[str]:
+    """A comma-separated list of names (``--scenes``, ``--methods``); empty items dropped."""
+    return [t for t in text.split(",") if t]
+
+
 def _int_list(text: str) -> list[int]:
     try:
         return [int(v) for v in text.split(",") if v]
@@ -1005,9 +1010,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("trade", help="speed/accuracy trade of every method's knobs, with box "
                         "and Open Image Denoise, Pareto plots and crops")
-    sp.add_argument("--scenes", type=lambda t: [s for s in t.split(",") if s], default=None,
+    sp.add_argument("--scenes", type=_names, default=None,
                     metavar="S,...", help="built-in scenes (default: all)")
-    sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
+    sp.add_argument("--methods", type=_names, default=None,
                     metavar="M,...", help="methods (default: all registered; box always runs)")
     sp.add_argument("--spp", type=_int_list, nargs="+", action=_IntsAction, default=[4, 8, 16],
                     metavar="N", help="samples per pixel of the measured buffers (N N ... or "
@@ -1025,9 +1030,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("errcheck", help="how well the per-pixel error estimate ranks the "
                         "true error: Spearman over 8x8 tiles, per scene and method")
-    sp.add_argument("--scenes", type=lambda t: [s for s in t.split(",") if s],
+    sp.add_argument("--scenes", type=_names,
                     default=["fence", "deep", "fast_motion"], metavar="S,...")
-    sp.add_argument("--methods", type=lambda t: [s for s in t.split(",") if s],
+    sp.add_argument("--methods", type=_names,
                     default=["box", "sweep", "layered", "splat"], metavar="M,...")
     sp.add_argument("--size", type=_size, default=(512, 512), help="WxH")
     sp.add_argument("--spp", type=int, default=8)
@@ -1037,9 +1042,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("converge", help="convergence study: MSE split into bias² and variance "
                         "against spp for every method's settings, log-log plots, an ablation")
-    sp.add_argument("--scenes", type=lambda t: [s for s in t.split(",") if s], default=None,
+    sp.add_argument("--scenes", type=_names, default=None,
                     metavar="S,...", help="built-in scenes (default: every one with blur)")
-    sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
+    sp.add_argument("--methods", type=_names, default=None,
                     metavar="M,...", help="methods (default: all registered; box always runs)")
     sp.add_argument("--settings", type=lambda t: [m.strip() for m in t.split(",") if m.strip()],
                     default=None, metavar="LABEL,...",
@@ -1073,7 +1078,7 @@ def build_parser() -> argparse.ArgumentParser:
                     metavar="SPEC",
                     help="[LABEL=]METHOD[:K=V,...], run after the default variants (box, "
                          "sweep 2-scale, sweep dof-layers) (repeatable; default: none)")
-    sp.add_argument("--methods", type=lambda t: [m for m in t.split(",") if m], default=None,
+    sp.add_argument("--methods", type=_names, default=None,
                     metavar="M,...", help="methods with their default knobs, run after the "
                     "default variants and --variant (default: none)")
     sp.add_argument("--only", action="store_true",

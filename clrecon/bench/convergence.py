@@ -66,7 +66,7 @@ from ..io import load_image, save_image
 from ..metrics import psnr
 from ..pipeline import METHODS, _load_methods, clear_sessions, make_pipeline, run
 from ..scenes import SCENES, get_scene, render_reference, render_samples
-from .trade import TRADES
+from .trade import TRADES, _duration
 
 DEFAULT_SPPS = (4, 8, 16, 32, 64, 128)
 DEFAULT_SIZE = (256, 256)
@@ -418,15 +418,6 @@ class _Eta:
         if not self.done:
             return f"{so_far} so far"
         return f"{so_far} so far, about {_duration(self.left * self.spent / self.done)} left"
-
-
-def _duration(seconds: float) -> str:
-    seconds = max(0.0, float(seconds))
-    if seconds < 90:
-        return f"{seconds:.0f} s"
-    if seconds < 5400:
-        return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.1f} h"
 
 
 def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = None,

@@ -77,8 +77,8 @@ class MipGeometry:
         self.rl, self.ml, self.tr, self.tm = rl[:n], ml[:n], tr[:n], tm[:n]
         # per level: reach E (a PSF within E level pixels of its bin) and pad P = 2 E (a
         # centre lies within RL + ML / 2 level pixels of its frame pixel)
-        self.reaches = [int(math.ceil(float(r) + 0.5 * float(m))) + 2 for r, m in zip(rl, ml)]
-        self.reaches = self.reaches[:n]
+        self.reaches = [int(math.ceil(float(r) + 0.5 * float(m))) + 2
+                        for r, m in zip(self.rl, self.ml)]
         self.reach = max(self.reaches)
         s = 2 ** (n - 1)
         # how far a bin can lie from its sample's pixel (frame pixels): the re-centring
