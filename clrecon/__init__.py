@@ -1,10 +1,10 @@
 """clrecon: OpenCL reconstruction of depth of field and motion blur from stochastic samples."""
 __version__ = "0.1.0"
 
-from .camera import CocModel, ThinLensCamera
-from .errors import ClreconError, DeviceError, KernelBuildError
-from .pipeline import reconstruct, run
-from .samples import SampleBuffer
+from clrecon.core.camera import CocModel, ThinLensCamera
+from clrecon.core.errors import ClreconError, DeviceError, KernelBuildError
+from clrecon.core.pipeline import reconstruct, run
+from clrecon.core.samples import SampleBuffer
 
 __all__ = [
     "CocModel", "ThinLensCamera", "ClreconError", "DeviceError", "KernelBuildError",

@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .fsutil import write_atomic
+from clrecon.core.fsutil import write_atomic
 
 SAMPLE_EXTENSIONS = (".bin", ".txt", ".exr", ".npz")
 
@@ -91,9 +91,9 @@ def make_jobs(inputs: Iterable[str], outdir: str, png: bool = False,
 
 def run_frame(job: Job, method: str, knobs: dict, device=None) -> dict:
     """Reconstruct one job and write its images; the record of :func:`batch`'s summary."""
-    from .io import load_image, load_samples, save_image
-    from .metrics import evaluate
-    from .pipeline import run
+    from clrecon.core.pipeline import run
+    from clrecon.io import load_image, load_samples, save_image
+    from clrecon.metrics import evaluate
 
     t0 = time.perf_counter()
     rec = {"frame": job.name, "input": job.input, "output": job.output, "png": job.png}
@@ -175,11 +175,11 @@ def batch(inputs: Iterable[str], outdir: str, method: str = "box", knobs: dict |
           progress: Callable[[dict], None] | None = None) -> dict:
     """Reconstruct every input into ``outdir``; returns (and writes) the summary.
 
-    ``devices``: the devices to use locally (``clrecon.device.get_device`` specs or
+    ``devices``: the devices to use locally (``clrecon.core.device.get_device`` specs or
     ``Device`` objects; default: the default device). ``workers``/``scheduler``: run on Dask
     instead. ``progress(record)`` is called once per finished frame.
     """
-    from .pipeline import METHODS, _load_methods
+    from clrecon.core.pipeline import METHODS, _load_methods
 
     knobs = dict(knobs or {})
     _load_methods()
@@ -196,7 +196,7 @@ def batch(inputs: Iterable[str], outdir: str, method: str = "box", knobs: dict |
     if scheduler is not None or workers is not None:
         records = _run_dask(todo, method, knobs, scheduler, workers, progress)
     else:
-        from .device import get_device
+        from clrecon.core.device import get_device
 
         devs = [get_device(d) for d in (devices or [None])]
         records = _run_local(todo, method, knobs, devs, progress)

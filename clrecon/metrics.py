@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .io import tonemap_srgb
+from clrecon.io import tonemap_srgb
 
 __all__ = ["psnr", "ssim", "flip", "flip_map", "evaluate"]
 

@@ -22,8 +22,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .io import tonemap_srgb
-from .metrics import evaluate
+from clrecon.io import tonemap_srgb
+from clrecon.metrics import evaluate
 
 
 def flicker(test: Sequence[np.ndarray], ref: Sequence[np.ndarray]) -> dict[str, float]:

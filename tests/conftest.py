@@ -8,8 +8,8 @@ import os
 import numpy as np
 import pytest
 
-from clrecon import device as cldev
-from clrecon.errors import DeviceError
+from clrecon.core import device as cldev
+from clrecon.core.errors import DeviceError
 
 _DEVICES = cldev.list_devices()
 #: the devices the ``device`` fixture runs on: every one, or those ``--device`` matches
@@ -29,7 +29,7 @@ def pytest_addoption(parser):
 def select_devices(spec: str, devices: list[cldev.DeviceInfo]) -> list[cldev.DeviceInfo]:
     """The devices of ``devices`` that ``spec`` names: the one of that index (digits), else
     every one whose ``platform / device`` label contains it, ignoring case (as
-    :func:`clrecon.device.get_device` matches, which takes the first of them)."""
+    :func:`clrecon.core.device.get_device` matches, which takes the first of them)."""
     spec = spec.strip()
     if spec.isdigit():
         return [d for d in devices if d.index == int(spec)]
@@ -69,7 +69,7 @@ def pytest_generate_tests(metafunc):
 
 @pytest.fixture(scope="session")
 def device(request) -> cldev.Device:
-    """A :class:`clrecon.device.Device` for each OpenCL device on the machine (or each that
+    """A :class:`clrecon.core.device.Device` for each OpenCL device on the machine (or each that
     ``--device`` matches)."""
     return cldev.get_device(request.param)
 
@@ -99,7 +99,7 @@ def assert_close(actual, expected, rtol=1e-5, atol=1e-6, what="values"):
 
 def trusted_reference(scene, width: int, height: int, spp: int, seed: int = 1) -> np.ndarray:
     """The converged reference a test judges a device's output by, never rendered on the
-    device under test: ``render_reference`` on :func:`clrecon.device.trusted_device` (PoCL),
+    device under test: ``render_reference`` on :func:`clrecon.core.device.trusted_device` (PoCL),
     else (no PoCL registered, e.g. ``OCL_ICD_VENDORS`` naming Oclgrind alone) the float64
     NumPy tracer on the same samples (:func:`numpy_reference`, slower: kept for the session)."""
     from clrecon.scenes import render_reference

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyopencl as cl
 
-from ..device import event_ms, get_kernel
+from clrecon.core.device import event_ms, get_kernel
 
 #: the smallest buffer :func:`default_buffer_bytes` picks (each of source and destination)
 MIN_BUFFER_BYTES = 256 * 2**20
@@ -135,7 +135,8 @@ def measure_peak(queue: cl.CommandQueue, buffer_bytes: int | None = None,
     Parameters
     ----------
     queue : pyopencl.CommandQueue
-        Created with profiling enabled (the bench's queue: :attr:`clrecon.device.Device.queue`).
+        Created with profiling enabled (the bench's queue:
+        :attr:`clrecon.core.device.Device.queue`).
     buffer_bytes : int, optional
         Size of each of the two buffers, a multiple of 16; default
         :func:`default_buffer_bytes`.

@@ -6,7 +6,7 @@ Per scene one converged reference (seed 1, the scene's ``reference_spp``) and a 
 folder; half the mean squared difference of the two is the reference's own noise variance.
 Per spp and seed index ``i`` one sample buffer (seed :func:`sample_seed`: ``1000 (i + 1) +
 spp``, never a reference's seed) is rendered, and every setting reconstructs it
-(:func:`clrecon.pipeline.run`).
+(:func:`clrecon.core.pipeline.run`).
 
 Error measure. MSE is taken on **linear radiance**, the mean over pixels and the three
 channels, against the seed-1 reference. (:func:`clrecon.metrics.psnr` is not defined on
@@ -59,14 +59,14 @@ from typing import Any
 
 import numpy as np
 
-from ..device import Device, DeviceSpec, get_device
-from ..errors import ClreconError
-from ..fsutil import write_atomic
-from ..io import load_image, save_image
-from ..metrics import psnr
-from ..pipeline import METHODS, _load_methods, clear_sessions, make_pipeline, run
-from ..scenes import SCENES, get_scene, render_reference, render_samples
-from .trade import TRADES, _duration
+from clrecon.bench.trade import TRADES, _duration
+from clrecon.core.device import Device, DeviceSpec, get_device
+from clrecon.core.errors import ClreconError
+from clrecon.core.fsutil import write_atomic
+from clrecon.core.pipeline import METHODS, _load_methods, clear_sessions, make_pipeline, run
+from clrecon.io import load_image, save_image
+from clrecon.metrics import psnr
+from clrecon.scenes import SCENES, get_scene, render_reference, render_samples
 
 DEFAULT_SPPS = (4, 8, 16, 32, 64, 128)
 DEFAULT_SIZE = (256, 256)
@@ -801,7 +801,7 @@ def _ablation_cell(a: dict | None) -> str:
 
 
 def _save_plot(path: Path, scene: str, rows: list[dict], noise_var: float) -> None:
-    from .trade import _plt
+    from clrecon.bench.trade import _plt
 
     plt = _plt()
     table = _by_setting(rows)

@@ -24,7 +24,7 @@ Each pass is also reported as a bandwidth: the bytes it must at least move, divi
 device time. A pass here is a leaf plan step, one that launches kernels itself: a step that
 runs a sub-pipeline (a safeguarded method's ``sweep`` and ``sweep (halves)`` steps) is
 looked into, down to the steps of the method's own plan. The byte count of a pass is that
-of the buffers its :class:`clrecon.plan.Step` names as ``inputs`` and ``outputs``, at the
+of the buffers its :class:`clrecon.core.plan.Step` names as ``inputs`` and ``outputs``, at the
 size bound for the call (sample fields as uploaded or split into halves, temporaries as
 planned, ``out`` ``H * W * 12``), each input read once and each output written once (a
 buffer a step both reads and writes counts twice; a step run twice, for both halves, counts
@@ -59,16 +59,16 @@ from typing import Any, Callable, Optional, Union
 
 import pyopencl as cl
 
-from ..device import Device, DeviceSpec, event_ms, get_device, list_devices
-from ..errors import DeviceError
-from ..fsutil import write_atomic
-from ..pipeline import DeviceSamples, Pipeline, make_pipeline
-from ..samples import SampleBuffer
-from ..tune.db import env_var
-from ..tune.runtime import clear_cache
-from ..tune.specs import SPECS, synthetic_frame
-from .bandwidth import clpeak_bandwidth, measure_peak
-from .methods import Variant, _check_variants
+from clrecon.bench.bandwidth import clpeak_bandwidth, measure_peak
+from clrecon.bench.table import Variant, _check_variants
+from clrecon.core.device import Device, DeviceSpec, event_ms, get_device, list_devices
+from clrecon.core.errors import DeviceError
+from clrecon.core.fsutil import write_atomic
+from clrecon.core.pipeline import DeviceSamples, Pipeline, make_pipeline
+from clrecon.core.samples import SampleBuffer
+from clrecon.tune.db import env_var
+from clrecon.tune.runtime import clear_cache
+from clrecon.tune.specs import SPECS, synthetic_frame
 
 Progress = Optional[Callable[[int, int], None]]
 PathLike = Union[str, "os.PathLike[str]"]
@@ -390,12 +390,12 @@ def bench(devices: str | DeviceSpec | Sequence[DeviceSpec] = "all",
     Parameters
     ----------
     devices : "all", int, str or sequence of int/str
-        ``"all"``: every OpenCL device present (:func:`clrecon.device.list_devices`);
+        ``"all"``: every OpenCL device present (:func:`clrecon.core.device.list_devices`);
         otherwise device indices or case-insensitive substrings of ``"platform / device"``
-        (see :func:`clrecon.device.get_device`). A device named twice is benched once.
+        (see :func:`clrecon.core.device.get_device`). A device named twice is benched once.
     variants : sequence of (label, method, knobs), optional
         Default :data:`DEFAULT_VARIANTS` (box, sweep 2-scale, sweep dof-layers); see
-        :func:`clrecon.bench.methods.parse_variant` for a text form. Labels must be unique.
+        :func:`clrecon.bench.table.parse_variant` for a text form. Labels must be unique.
     size : tuple of int
         ``(width, height)`` of the frame.
     spp : int
@@ -442,7 +442,7 @@ def bench(devices: str | DeviceSpec | Sequence[DeviceSpec] = "all",
         Bad size, spp, repeats, device list, scene or variant.
     TypeError
         A variant's knob that its method does not take.
-    clrecon.errors.DeviceError
+    clrecon.core.errors.DeviceError
         No OpenCL device, or a spec that matches none.
     """
     variants = _check_variants(DEFAULT_VARIANTS if variants is None else variants)
@@ -456,7 +456,7 @@ def bench(devices: str | DeviceSpec | Sequence[DeviceSpec] = "all",
     spp, repeats = int(spp), int(repeats)
     scene_obj = None
     if scene is not None:
-        from ..scenes import get_scene
+        from clrecon.scenes import get_scene
 
         scene_obj = get_scene(scene)  # unknown names fail before any device work
     if peak_bytes is not None and not peak:
@@ -474,7 +474,7 @@ def bench(devices: str | DeviceSpec | Sequence[DeviceSpec] = "all",
     if scene_obj is None:
         buf = synthetic_frame(w, h, spp)
     else:
-        from ..scenes import render_samples
+        from clrecon.scenes import render_samples
 
         buf = render_samples(scene_obj, w, h, spp, seed=0, device=devs[0])
         buf.validate()
@@ -669,7 +669,7 @@ def plot_bandwidth(result: dict, path: PathLike) -> Path:
     -------
     pathlib.Path
     """
-    from .trade import _plt
+    from clrecon.bench.trade import _plt
 
     plt = _plt()
     vals = _index(result["rows"])

@@ -8,7 +8,7 @@ radiance, mean over RGB, the same quantity the estimate is of), over 8x8 tiles:
   renderer placing its next samples by the estimate relies on: the order of the tiles);
 * the ratio of the frame's mean estimate to its true mean squared error (calibration).
 
-References come from the trusted device (PoCL; :func:`clrecon.device.trusted_device`) and
+References come from the trusted device (PoCL; :func:`clrecon.core.device.trusted_device`) and
 are cached in the output folder.
 """
 from __future__ import annotations
@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..device import get_device, trusted_device
-from ..io import load_image, save_image
-from ..pipeline import run
-from ..scenes import get_scene, render_reference, render_samples
+from clrecon.core.device import get_device, trusted_device
+from clrecon.core.pipeline import run
+from clrecon.io import load_image, save_image
+from clrecon.scenes import get_scene, render_reference, render_samples
 
 TILE = 8
 

@@ -1,8 +1,8 @@
 """Frames of one built-in scene at a chosen amount of blur: the blur family the scaling study
-(``tests/benchmarks/scaling_study.py``) times every method on.
+(``tools/scaling_study.py``) times every method on.
 
 A scene's blur comes from its camera and its objects: a surface at depth ``Z`` has the CoC
-``f R (1/F - 1/Z)`` pixels (:class:`clrecon.camera.ThinLensCamera`), linear in the lens
+``f R (1/F - 1/Z)`` pixels (:class:`clrecon.core.camera.ThinLensCamera`), linear in the lens
 radius ``R``, and an object moving at ``v`` (parallel to the image plane) moves ``f v / Z``
 pixels over the shutter, linear in ``v``. A frame whose largest |CoC| is ``c`` pixels and
 whose longest motion is ``m`` pixels is therefore the scene with its lens radius and every
@@ -13,7 +13,7 @@ and the samples' random numbers (same seed) stay, so every frame of the family h
 scene's depth structure with each CoC and each motion scaled by one factor.
 
 Which surface a ray hits shifts a little with the lens radius and the velocities, so the
-frame's measured maxima (:meth:`clrecon.samples.SampleBuffer.inspect`) can miss a scale
+frame's measured maxima (:meth:`clrecon.core.samples.SampleBuffer.inspect`) can miss a scale
 computed from the scene's first render; :func:`render_blur_frame` refines both scales from
 each render's measured maxima until they are within ``rel_tol`` (on ``deep`` the first
 refinement already lands within float32 rounding).
@@ -23,9 +23,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from ..device import Device, DeviceSpec
-from ..samples import FrameInfo, SampleBuffer
-from ..scenes import Scene, render_samples
+from clrecon.core.device import Device, DeviceSpec
+from clrecon.core.samples import FrameInfo, SampleBuffer
+from clrecon.scenes import Scene, render_samples
 
 #: relative tolerance of a frame's measured max |CoC| and |motion| against the targets
 REL_TOL = 0.02

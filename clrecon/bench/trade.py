@@ -33,16 +33,17 @@ from typing import Any
 import numpy as np
 import pyopencl as cl
 
-from ..device import Device, DeviceSpec, get_device
-from ..io import load_image, load_samples, save_image, tonemap_srgb
-from ..metrics import evaluate
-from ..pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline
-from ..scenes import get_scene, render_reference, render_samples
-from .methods import CROP, Progress, _check_variants, frame_sources, hardest_region
+from clrecon.bench.table import CROP, Progress, _check_variants, frame_sources, hardest_region
+from clrecon.core.device import Device, DeviceSpec, get_device
+from clrecon.core.pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline
+from clrecon.io import load_image, load_samples, save_image, tonemap_srgb
+from clrecon.metrics import evaluate
+from clrecon.scenes import get_scene, render_reference, render_samples
 
 #: per method, the settings that trade speed for accuracy (label, knobs); a method that is
 #: not registered is skipped, a knob a method does not take is an error. ``safeguard=False``
-#: is the paper's method alone; ``+safeguard`` the method's default (:mod:`clrecon.safeguard`)
+#: is the paper's method alone; ``+safeguard`` the method's default
+#: (:mod:`clrecon.methods.safeguard`)
 TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
     "box": (("box", {}),),
     "sweep": (
@@ -211,7 +212,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     oidn : bool
         Include the Open Image Denoise baselines (needs ``pyoidn``).
     device : int, str, Device or None
-        See :func:`clrecon.device.get_device`.
+        See :func:`clrecon.core.device.get_device`.
     out_dir : str or Path
         Created; receives the outputs and the reference cache ``references/``.
     ref_spp : int, optional

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from .primitives import Scene
+from clrecon.scenes.primitives import Scene
 
 DEFAULT_PAN_PER_FOCUS = 0.004
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .primitives import Box, Material, Plane, Quad, Scene, Sphere
+from clrecon.scenes.primitives import Box, Material, Plane, Quad, Scene, Sphere
 
 CHECK_W = Material((0.85, 0.85, 0.8), (0.08, 0.08, 0.1), "checker", 0.25)
 CHECK_R = Material((0.9, 0.3, 0.2), (0.95, 0.9, 0.8), "checker", 0.2)

@@ -13,7 +13,7 @@ from typing import Union
 
 import numpy as np
 
-from ..camera import ThinLensCamera
+from clrecon.core.camera import ThinLensCamera
 
 OBJ_STRIDE = 32
 TEXTURES = {"flat": 0, "checker": 1, "stripe": 2}

@@ -9,10 +9,10 @@ from typing import Callable, Optional
 import numpy as np
 import pyopencl as cl
 
-from ..device import Device, DeviceSpec, get_kernel, trusted_device
-from ..device import get_device as _get_device
-from ..samples import SampleBuffer
-from .primitives import Scene
+from clrecon.core.device import Device, DeviceSpec, get_kernel, trusted_device
+from clrecon.core.device import get_device as _get_device
+from clrecon.core.samples import SampleBuffer
+from clrecon.scenes.primitives import Scene
 
 Progress = Optional[Callable[[int, int], None]]
 
@@ -24,9 +24,9 @@ REFERENCE_CHUNK = 32
 
 def _local_size(context: cl.Context, width: int, height: int, spp: int):
     """The tuned local size of pass ``raytrace`` (see clrecon.tune) for this frame shape."""
-    from ..samples import FrameInfo
-    from ..tune.runtime import tuned
-    from ..tune.specs import local_size_of
+    from clrecon.core.samples import FrameInfo
+    from clrecon.tune.runtime import tuned
+    from clrecon.tune.specs import local_size_of
 
     info = FrameInfo(width, height, spp, 0.0, 0.0, 0.0, 0.0, 0.0)
     return local_size_of(tuned(context, "raytrace", info).config)
@@ -96,7 +96,7 @@ def render_reference(scene: Scene, width: int, height: int, spp: int | None = No
     """Converged image: lens, shutter and pixel area integrated with ``spp`` samples per pixel
     (box pixel filter; default ``scene.reference_spp``), accumulated in float64 on the host.
 
-    ``device=None`` renders on :func:`~clrecon.device.trusted_device` (PoCL), not on the
+    ``device=None`` renders on :func:`~clrecon.core.device.trusted_device` (PoCL), not on the
     device ``CLRECON_DEVICE`` chooses: a reference is what a device's output is judged by,
     so it must not come from the device under test. Pass a device to render on it anyway
     (a test of that device's tracer)."""

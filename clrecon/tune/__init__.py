@@ -3,7 +3,7 @@
 Both modules are pure logic (no OpenCL import): the search talks to a :class:`Runner`, the
 database reads and writes JSON files under ``tuning/<runtime>/<device>.json``.
 """
-from .db import (
+from clrecon.tune.db import (
     SCHEMA_VERSION,
     Lookup,
     bucket_for,
@@ -16,7 +16,7 @@ from .db import (
     save_result,
     slug,
 )
-from .tuner import (
+from clrecon.tune.tuner import (
     MIN_RUNS,
     STATUSES,
     Config,

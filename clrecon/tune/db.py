@@ -1,7 +1,7 @@
 """The tuning database: one JSON file per OpenCL runtime and device, and the lookup chain.
 
 Layout: ``ROOT/<runtime>/<device>.json`` with ``ROOT`` the package data directory
-``tuning/`` (:func:`clrecon._resources.tuning_dir`), ``<runtime>`` the slug of the OpenCL
+``tuning/`` (:func:`clrecon.core.resources.tuning_dir`), ``<runtime>`` the slug of the OpenCL
 platform name (``portable-computing-language``) and ``<device>`` the slug of the device name.
 The runtime is kept apart from the hardware vendor: the same CPU tunes differently under PoCL
 and under a vendor runtime. A file holds::
@@ -34,11 +34,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Union
 
-from ..fsutil import write_atomic
-from .tuner import Config, TuneResult
+from clrecon.core.fsutil import write_atomic
+from clrecon.tune.tuner import Config, TuneResult
 
 if TYPE_CHECKING:  # no OpenCL import at run time: this module is pure logic
-    from ..device import DeviceInfo
+    from clrecon.core.device import DeviceInfo
 
 log = logging.getLogger("clrecon")
 
@@ -94,7 +94,7 @@ def env_var(pass_name: str) -> str:
 
 def _root(root: PathLike | None) -> Path:
     if root is None:
-        from .._resources import tuning_dir
+        from clrecon.core.resources import tuning_dir
 
         return tuning_dir()
     return Path(root)
@@ -258,7 +258,7 @@ def lookup(
     pass_name, bucket : str
         The pass and the problem-size bucket (:func:`bucket_for`).
     source_hash : str
-        Current :func:`clrecon.device.source_hash` of the pass's kernel.
+        Current :func:`clrecon.core.device.source_hash` of the pass's kernel.
     defaults : dict, optional
         Per-pass configurations used when the database has nothing.
     root : path, optional

@@ -19,13 +19,13 @@ from typing import TYPE_CHECKING
 
 import pyopencl as cl
 
-from ..device import describe, source_hash
-from ..samples import FrameInfo
-from .db import Lookup, bucket_for, lookup
-from .specs import DEFAULTS, GPU_DEFAULTS, SPECS
+from clrecon.core.device import describe, source_hash
+from clrecon.core.samples import FrameInfo
+from clrecon.tune.db import Lookup, bucket_for, lookup
+from clrecon.tune.specs import DEFAULTS, GPU_DEFAULTS, SPECS
 
 if TYPE_CHECKING:
-    from ..device import DeviceInfo
+    from clrecon.core.device import DeviceInfo
 
 _cache: dict[tuple, Lookup] = {}
 

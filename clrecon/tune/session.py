@@ -5,11 +5,11 @@ import time
 
 import pyopencl as cl
 
-from ..device import Device, DeviceSpec, get_device, source_hash
-from .db import bucket_for, db_path, entry_key, load, save_result
-from .runtime import clear_cache
-from .specs import SPECS
-from .tuner import BudgetExceeded, tune
+from clrecon.core.device import Device, DeviceSpec, get_device, source_hash
+from clrecon.tune.db import bucket_for, db_path, entry_key, load, save_result
+from clrecon.tune.runtime import clear_cache
+from clrecon.tune.specs import SPECS
+from clrecon.tune.tuner import BudgetExceeded, tune
 
 #: the frame size tuned by default: large enough to be representative, small enough that
 #: every pass tunes within minutes on a 2-core CPU

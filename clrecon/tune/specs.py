@@ -12,10 +12,10 @@ from typing import Callable
 import numpy as np
 import pyopencl as cl
 
-from ..camera import CocModel
-from ..device import Device
-from ..pipeline import DeviceSamples, LocalSize
-from ..samples import SampleBuffer
+from clrecon.core.camera import CocModel
+from clrecon.core.device import Device
+from clrecon.core.pipeline import DeviceSamples, LocalSize
+from clrecon.core.samples import SampleBuffer
 
 LOCAL_SIZES = [(1, 1), (4, 4), (8, 8), (16, 4), (16, 8), (32, 4), (32, 8), (64, 1), (16, 16)]
 
@@ -117,7 +117,7 @@ def _wg(config):
 
 
 def _box_runner(dev, w, h, spp):
-    from ..box import Box
+    from clrecon.methods.box import Box
 
     buf = synthetic_frame(w, h, spp)
     s = DeviceSamples.upload(dev.queue, buf, ("color",))
@@ -126,7 +126,7 @@ def _box_runner(dev, w, h, spp):
 
 
 def _prepare_runner(dev, w, h, spp):
-    from ..sweep.prepare import SweepPrepare
+    from clrecon.methods.sweep.prepare import SweepPrepare
 
     s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp))
     colors = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * spp * 16)
@@ -135,7 +135,7 @@ def _prepare_runner(dev, w, h, spp):
 
 
 def _sweep_inputs(dev, w, h, spp):
-    from ..sweep.prepare import SweepPrepare
+    from clrecon.methods.sweep.prepare import SweepPrepare
 
     s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp))
     rw = cl.mem_flags.READ_WRITE
@@ -162,7 +162,7 @@ def resolve_group(config):
 
 def make_resolve(context, spp: int, scales: int, exponent: float, config: dict):
     """A :class:`SweepResolve` for a tuning configuration."""
-    from ..sweep.resolve import SORTS, SweepResolve
+    from clrecon.methods.sweep.resolve import SORTS, SweepResolve
 
     sort = config.get("sort")
     if sort not in SORTS:
@@ -181,7 +181,7 @@ def _resolve_runner(dev, w, h, spp):
 
 
 def _block_runner(dev, w, h, spp):
-    from ..sweep.block import SweepBlock
+    from clrecon.methods.sweep.block import SweepBlock
 
     s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp))
     return PassRunner(dev, lambda c: SweepBlock(dev.context, spp, 2, 1.0, True, c["group"]),
@@ -190,7 +190,7 @@ def _block_runner(dev, w, h, spp):
 
 
 def _layer_sums_runner(dev, w, h, spp):
-    from ..sweep.layers import SweepLayerSums
+    from clrecon.methods.sweep.layers import SweepLayerSums
 
     s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp), ("color", "depth"))
     return PassRunner(dev, lambda c: SweepLayerSums(dev.context, spp, local_size_of(c)),
@@ -198,7 +198,7 @@ def _layer_sums_runner(dev, w, h, spp):
 
 
 def _layer_resolve_runner(dev, w, h, spp):
-    from ..sweep.layers import SweepLayerResolve, SweepLayerSums
+    from clrecon.methods.sweep.layers import SweepLayerResolve, SweepLayerSums
 
     s = DeviceSamples.upload(dev.queue, synthetic_frame(w, h, spp), ("color", "depth"))
     sums = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * 3 * 16)
@@ -208,8 +208,8 @@ def _layer_resolve_runner(dev, w, h, spp):
 
 
 def _raytrace_runner(dev, w, h, spp):
-    from ..scenes import get_scene
-    from ..scenes import render as rt
+    from clrecon.scenes import get_scene
+    from clrecon.scenes import render as rt
 
     scene = get_scene("deep")
     cam, objs, camera, light, bg = rt._common_args(scene, w, h, dev.context)
@@ -242,7 +242,7 @@ def layered_1d_candidates() -> list[dict | None]:
 
 def _layered_inputs(dev, w, h, spp, **knobs):
     """A layered pipeline run once on a synthetic frame: every intermediate buffer filled."""
-    from ..pipeline import make_pipeline
+    from clrecon.core.pipeline import make_pipeline
 
     buf = synthetic_frame(w, h, spp)
     # the method's own passes: the safeguard's blend around them is not what is tuned
@@ -261,7 +261,7 @@ def _zero(queue, buf):
 
 
 def _tile_stats_runner(dev, w, h, spp):
-    from ..layered.tile_stats import TileStats
+    from clrecon.methods.layered.tile_stats import TileStats
 
     pipe, s, nt = _layered_inputs(dev, w, h, spp)
     lay, kabc = pipe.lay, pipe.bucket_params(s)
@@ -271,7 +271,7 @@ def _tile_stats_runner(dev, w, h, spp):
 
 
 def _partition_setup_runner(dev, w, h, spp):
-    from ..layered.partition_setup import PartitionSetup
+    from clrecon.methods.layered.partition_setup import PartitionSetup
 
     pipe, s, nt = _layered_inputs(dev, w, h, spp)
     lay, st = pipe.lay, pipe.buffers["stats"]
@@ -281,7 +281,7 @@ def _partition_setup_runner(dev, w, h, spp):
 
 
 def _reproject_runner(dev, w, h, spp):
-    from ..layered.reproject import Reproject
+    from clrecon.methods.layered.reproject import Reproject
 
     pipe, s, nt = _layered_inputs(dev, w, h, spp)
     lay, kabc, par = pipe.lay, pipe.bucket_params(s), pipe.buffers["params"]
@@ -293,7 +293,7 @@ def _reproject_runner(dev, w, h, spp):
 def _filter_sheared_runner(dev, w, h, spp):
     """Times filter_sheared_x and _y together (``pass_time_ms``); each launch first restores
     the reprojected grids, which filter_sheared_x filters in place."""
-    from ..layered.filter_sheared import FilterSheared
+    from clrecon.methods.layered.filter_sheared import FilterSheared
 
     pipe, s, nt = _layered_inputs(dev, w, h, spp)
     lay, par = pipe.lay, pipe.buffers["params"]
@@ -311,7 +311,7 @@ def _filter_sheared_runner(dev, w, h, spp):
 
 
 def _filter_rotated_runner(dev, w, h, spp):
-    from ..layered.filter_rotated import FilterRotated
+    from clrecon.methods.layered.filter_rotated import FilterRotated
 
     pipe, s, nt = _layered_inputs(dev, w, h, spp, mode="lrdm")
     lay, b = pipe.lay, pipe.buffers
@@ -322,7 +322,7 @@ def _filter_rotated_runner(dev, w, h, spp):
 
 
 def _filter_mip_runner(dev, w, h, spp):
-    from ..layered.filter_mip import FilterMip
+    from clrecon.methods.layered.filter_mip import FilterMip
 
     pipe, s, nt = _layered_inputs(dev, w, h, spp, filter="mip")
     lay, b = pipe.lay, pipe.buffers
@@ -333,7 +333,7 @@ def _filter_mip_runner(dev, w, h, spp):
 
 
 def _composite_runner(dev, w, h, spp):
-    from ..layered.composite import Composite
+    from clrecon.methods.layered.composite import Composite
 
     pipe, s, nt = _layered_inputs(dev, w, h, spp)
     lay, b = pipe.lay, pipe.buffers
@@ -402,7 +402,7 @@ def splat_candidates() -> list:
 
 
 def _splat_frame_pipeline(dev, w, h, spp):
-    from ..pipeline import make_pipeline
+    from clrecon.core.pipeline import make_pipeline
 
     buf = synthetic_frame(w, h, spp)
     s = DeviceSamples.upload(dev.queue, buf)
@@ -412,7 +412,7 @@ def _splat_frame_pipeline(dev, w, h, spp):
 
 
 def _splat_runner(dev, w, h, spp):
-    from ..splat.splat import Splat
+    from clrecon.methods.splat.splat import Splat
 
     pipe, s = _splat_frame_pipeline(dev, w, h, spp)
     n = pipe.layers * pipe.shape[0] * pipe.shape[1] * 4
@@ -429,7 +429,7 @@ def _splat_runner(dev, w, h, spp):
 
 
 def _integrate_runner(dev, w, h, spp):
-    from ..splat.integrate import Integrate
+    from clrecon.methods.splat.integrate import Integrate
 
     pipe, s = _splat_frame_pipeline(dev, w, h, spp)
     q = dev.queue
@@ -444,7 +444,7 @@ def _integrate_runner(dev, w, h, spp):
 
 
 def _splat_composite_runner(dev, w, h, spp):
-    from ..splat.composite import Composite
+    from clrecon.methods.splat.composite import Composite
 
     pipe, s = _splat_frame_pipeline(dev, w, h, spp)
     out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, w * h * 12)

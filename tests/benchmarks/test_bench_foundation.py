@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 import clrecon
-from clrecon.pipeline import DeviceSamples, make_pipeline
+from clrecon.core.pipeline import DeviceSamples, make_pipeline
 from clrecon.scenes import SCENES, get_scene, render_samples
 
 pytestmark = pytest.mark.benchmark_suite
@@ -32,7 +32,8 @@ def test_box_pass(benchmark, device):
     buf = render_samples(get_scene("fence"), W, H, S, device=device)
     pipe = make_pipeline("box", device.context, buf.inspect())
     samples = DeviceSamples.upload(device.queue, buf, pipe.fields)
-    out = clrecon.pipeline.cl.Buffer(device.context, clrecon.pipeline.cl.mem_flags.WRITE_ONLY,
+    cl = clrecon.core.pipeline.cl
+    out = cl.Buffer(device.context, cl.mem_flags.WRITE_ONLY,
                                      W * H * 12)
 
     def once():

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pyopencl as cl
 import pytest
 
-from clrecon.pipeline import DeviceSamples, make_pipeline
+from clrecon.core.pipeline import DeviceSamples, make_pipeline
 from clrecon.scenes import get_scene, render_samples
 
 pytestmark = pytest.mark.benchmark_suite

@@ -13,8 +13,8 @@ import os
 import pyopencl as cl
 import pytest
 
-from clrecon.device import event_ms
-from clrecon.pipeline import DeviceSamples, make_pipeline
+from clrecon.core.device import event_ms
+from clrecon.core.pipeline import DeviceSamples, make_pipeline
 from clrecon.tune.specs import synthetic_frame
 
 pytestmark = pytest.mark.benchmark_suite

@@ -1,0 +1,28 @@
+"""Pass ``partition_setup``: layer merging and each partition's reprojection and filter."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from clrecon.core.pipeline import LocalSize
+from clrecon.methods.layered.passes import layered_kernel, local_for
+from clrecon.methods.layered.reference import Layout
+
+
+class PartitionSetup:
+    """``kernels/partition_setup.cl``: one work-item per tile; ``threshold < 0``: no merging."""
+
+    name = "partition_setup"
+
+    def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None):
+        self.lay = lay
+        self.local = LocalSize(local.x, 1) if local and local.x else (local or LocalSize(8, 1))
+        # the local size is a launch parameter only: every configuration shares one program
+        self.kernel = layered_kernel(context, "partition_setup", "partition_setup", lay, None)
+
+    def __call__(self, queue, stats: cl.Buffer, ntiles: int, sigma_x: float, threshold: float,
+                 params: cl.Buffer, wait_for=None) -> cl.Event:
+        self.kernel.set_args(stats, np.int32(ntiles), np.float32(sigma_x),
+                             np.float32(threshold), params)
+        g, loc = local_for(self.local, (ntiles,))
+        return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)

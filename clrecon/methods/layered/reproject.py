@@ -1,0 +1,100 @@
+"""Pass ``reproject``: samples of a tile and its guard band splatted into each partition."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from clrecon.core.fixed import enqueue_color_bound
+from clrecon.core.pipeline import DeviceSamples, LocalSize
+from clrecon.methods.layered.passes import layered_kernel
+from clrecon.methods.layered.reference import Layout, subsample_cap
+
+
+class Reproject:
+    """``kernels/reproject.cl``: ``reproject_buckets`` (every sample's depth bucket, a byte,
+    computed once instead of by each of the 4-5 slots that gather it), then one work-group of
+    ``local.x`` items per (tile, slot); with one item the slot's grid is owned (plain adds),
+    otherwise items scatter with atomics: float atomics (the order of the adds varies run to
+    run), or with ``fixed`` int64 fixed-point atomics into a second buffer of the grids'
+    layout, converted to the float grids by the same group (bit-identical run to run;
+    ``deterministic=True`` of the method)."""
+
+    name = "reproject"
+
+    def __init__(self, context: cl.Context, lay: Layout, bilinear: bool = False,
+                 local: LocalSize | None = None, subsample: int | bool = True,
+                 fixed: bool = False, local_acc: bool | None = None):
+        self.lay = lay
+        wg = local.x if local and local.x else 1
+        self.local = LocalSize(wg, 1)
+        self.fixed = bool(fixed)
+        # the owner (one item) of a slot keeps its own channels in local memory, a float4 per
+        # grid cell (kernels/reproject.cl: OWN_LOCAL), where the device has room for them
+        # (local_acc None; False: in the grids, as the items of a group do)
+        need, have = 16 * lay.dmax ** 2, min(d.local_mem_size for d in context.devices)
+        room = need <= have
+        if local_acc and not room:
+            raise ValueError(f"local_acc: needs {need} bytes of local memory; the device has "
+                             f"{have}")
+        self.local_acc = wg == 1 and room and local_acc is not False
+        defines = dict(SPLAT_BILINEAR=bool(bilinear), SUBSAMPLE=subsample_cap(subsample),
+                       FIXED=self.fixed, LOCAL_ACC=self.local_acc)
+        self.kernel = layered_kernel(context, "reproject", "reproject", lay, self.local,
+                                     **defines)
+        self.bucket_kernel = layered_kernel(context, "reproject", "reproject_buckets", lay,
+                                            self.local, **defines)
+        self._own_buckets: cl.Buffer | None = None
+        if self.fixed:
+            self.bound_kernel = layered_kernel(context, "reproject", "reproject_color_bound",
+                                               lay, self.local, **defines)
+        self.events: list[tuple[str, cl.Event]] = []
+
+    @staticmethod
+    def buckets_bytes(width: int, height: int, spp: int) -> int:
+        """Bytes of the ``buckets`` temporary: one per sample."""
+        return width * height * spp
+
+    def __call__(self, queue, samples: DeviceSamples, kabc, params: cl.Buffer,
+                 grids: cl.Buffer, wait_for=None, fixed: cl.Buffer | None = None,
+                 bound: cl.Buffer | None = None, buckets: cl.Buffer | None = None
+                 ) -> cl.Event:
+        """Enqueue the pass (with ``fixed``: first the colour bound into ``bound``, 16 bytes,
+        and ``fixed``, twice the size of ``grids``, as the accumulator); ``buckets``
+        (:meth:`buckets_bytes`; without it the pass's own, kept between calls) receives the
+        samples' buckets. ``self.events`` then holds every command's ``(name, event)``."""
+        if self.fixed and (fixed is None or bound is None):
+            raise ValueError("fixed: the pass needs the fixed-point grids and the colour bound "
+                             "buffer")
+        ntx, nty = self.lay.tiles(samples.width, samples.height)
+        npix = samples.width * samples.height
+        need = self.buckets_bytes(samples.width, samples.height, self.lay.spp)
+        if buckets is None:
+            if self._own_buckets is None or self._own_buckets.size < need:
+                self._own_buckets = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, need)
+            buckets = self._own_buckets
+        elif buckets.size < need:
+            raise ValueError(f"buckets: needs {need} bytes, got {buckets.size}")
+        self.bucket_kernel.set_args(samples["depth"], np.int32(npix),
+                                    *(np.float32(v) for v in kabc), buckets)
+        ev = cl.enqueue_nd_range_kernel(queue, self.bucket_kernel, (npix,), None,
+                                        wait_for=wait_for)
+        # named as the pass: its time and bytes are the pass's (reports list passes by name)
+        self.events = [("reproject", ev)]
+        time = samples.buffers.get("time", samples["depth"])
+        args = [samples["color"], samples["position"], buckets, samples["lens"], time,
+                np.int32(samples.width), np.int32(samples.height), np.int32(ntx), params,
+                grids]
+        deps = [ev]
+        if self.fixed:
+            n = samples.width * samples.height * samples.spp
+            clear, ev = enqueue_color_bound(queue, self.bound_kernel, samples["color"], n,
+                                            bound, wait_for)
+            self.events += [("clear", clear), ("reproject_color_bound", ev)]
+            deps.append(ev)
+            args += [fixed, bound]
+        self.kernel.set_args(*args)
+        n = ntx * nty * self.lay.maxp * self.local.x
+        ev = cl.enqueue_nd_range_kernel(queue, self.kernel, (n,), (self.local.x,),
+                                        wait_for=deps)
+        self.events.append(("reproject", ev))
+        return ev

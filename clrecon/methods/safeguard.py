@@ -1,0 +1,290 @@
+"""The per-pixel safeguard: every method's squared error estimated from the samples, and a
+blend toward the box filter wherever the method's bias dominates (``kernels/safeguard.cl``).
+
+Why. The three papers' methods trade bias for variance once and for all: at 16-64 spp
+their images stop improving and fall below the per-pixel average (box), whose error is pure
+variance and keeps falling. A renderer that adds samples expects a better image; it also
+wants to know where the image is wrong (to place its next samples).
+
+How. The frame's samples are split per pixel into two halves, A (samples ``0..ha-1``) and
+B (``ha..S-1``): two independent estimates of everything. The method runs on the frame
+(image ``m``) and on each half (``mA``, ``mB``); box is the samples' mean, ``boxA``/``boxB``
+the halves'. With ``k = ha hb / S^2`` (``1/4`` for equal halves), per pixel, in linear
+radiance averaged over RGB:
+
+* ``vb = k |boxA - boxB|^2`` estimates box's variance (its whole error: box is unbiased).
+  Independent halves, not the samples' spread: a renderer's samples are usually
+  stratified, and the spread of stratified samples overstates the variance of their mean
+  many times over (100x at 64 spp on the built-in scenes);
+* ``vm = k |mA - mB|^2`` estimates the method's variance (the halves' images differ by
+  noise alone);
+* ``d2 = |m - box|^2`` has expectation ``bias^2 + var(m - box)``, so
+  ``e = d2 - vm - vb`` estimates the method's squared bias; it is averaged over a 7x7 window
+  (a bias is coherent in space, noise is not), and over 3x3 where that mean stands two
+  standard errors above zero (a bias along a thin edge, which the wider window dilutes; the
+  noise of the 3x3 mean alone would otherwise pull the image toward box at low spp):
+  ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))``;
+* the method's error is ``err_m = b2 + mean3(vm)``; the weight that minimises the expected
+  squared error of ``box + w (m - box)`` when the two errors are independent is
+  ``w = vb / (vb + err_m)``, and the blend's error ``w^2 err_m + (1 - w)^2 vb``. Here ``vb``
+  is ``max(mean3(vb), mean7(vb))`` (box's own error estimate stays the unbiased
+  ``mean3(vb)``): a pixel whose own samples all missed a rare contributor
+  (a blurred highlight) has halves that agree and a variance near 0, while its neighbours'
+  samples show the spread (without the 7x7 term the blend lost 2 dB to the method on
+  ``bokeh`` at 8 spp).
+
+As samples grow, ``vb`` falls like box's error while a method's bias does not, so ``w``
+goes to 0 and the image to box's: the blend is consistent. Where the method is unbiased
+(blurred regions, which are most of its gain) ``w`` stays near 1.
+
+Range: valid colours reach 1e30, whose squares overflow float32; the kernels keep each
+pixel's statistics in units of its own binary exponent and rescale a window to its largest
+before adding, so the image is exact at any valid colour, and the error image saturates at
+float32's largest value (colours above ~1e19).
+
+Cost: the method runs on the frame and on both halves (about twice its own time), plus one
+split copy of the fields and two cheap passes. ``safeguard=False`` is the papers' method
+alone (``mode="paper"`` in reports); ``estimate_error=True`` also returns the error image.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pyopencl as cl
+
+from clrecon.core.device import get_kernel
+from clrecon.core.pipeline import DeviceSamples, Pipeline
+from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
+from clrecon.core.samples import FIELDS
+
+_FLT_MAX = float(np.finfo(np.float32).max)  # the error image saturates there
+
+#: the blend kernel's modes
+MODE_BOX, MODE_METHOD, MODE_BLEND = 0, 1, 2
+
+
+def halves(spp: int) -> tuple[int, int]:
+    """Sample counts of the two halves of an ``spp``-sample pixel."""
+    return spp // 2, spp - spp // 2
+
+
+# -- NumPy reference -------------------------------------------------------------------------
+def _lum2(d: np.ndarray) -> np.ndarray:
+    return (d.astype(np.float64) ** 2).mean(-1)
+
+
+def _window_mean(a: np.ndarray, r: int) -> np.ndarray:
+    """Mean over the (2r+1)^2 window, counting only pixels inside the image."""
+    h, w = a.shape
+    p = np.pad(a, r)
+    ones = np.pad(np.ones_like(a), r)
+    s = sum(p[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
+    n = sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
+    return s / n
+
+
+def _window_count(shape, r: int) -> np.ndarray:
+    """How many pixels of the (2r+1)^2 window lie inside the image."""
+    h, w = shape
+    ones = np.pad(np.ones(shape), r)
+    return sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
+
+
+def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND):
+    """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
+    method's images on the frame and on its halves (H, W, 3); float64."""
+    s = color.shape[2]
+    ha, hb = halves(s)
+    c = color.astype(np.float64)
+    sa, sb = c[:, :, :ha].sum(2), c[:, :, ha:].sum(2)
+    box = (sa + sb) / s
+    k = ha * hb / (s * s)
+    vb = k * _lum2(sa / ha - sb / hb)
+    vb3 = _window_mean(vb, 1)
+    if mode == MODE_BOX:
+        return box, np.minimum(vb3, _FLT_MAX)
+    m = m.astype(np.float64)
+    d2 = _lum2(m - box)
+    vm = k * _lum2(ma.astype(np.float64) - mb)
+    e = d2 - vm - vb
+    mu3 = _window_mean(e, 1)
+    n3 = _window_count(e.shape, 1)
+    se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
+    b2 = np.maximum(0.0, np.maximum(_window_mean(e, 3), mu3 - 2.0 * se3))
+    err_m = b2 + _window_mean(vm, 1)
+    if mode == MODE_METHOD:
+        return m, np.minimum(err_m, _FLT_MAX)
+    vbw = np.maximum(vb3, _window_mean(vb, 3))
+    den = vbw + err_m
+    w = np.where(den > 0, vbw / np.where(den > 0, den, 1), 0.0)
+    img = box + w[..., None] * (m - box)
+    return img, np.minimum(w * w * err_m + (1 - w) ** 2 * vbw, _FLT_MAX)
+
+
+# -- passes ----------------------------------------------------------------------------------
+class SafeguardPasses:
+    """The three kernels of ``kernels/safeguard.cl``."""
+
+    def __init__(self, context: cl.Context):
+        self.split = get_kernel(context, "safeguard", "safeguard_split")
+        self.stats = get_kernel(context, "safeguard", "safeguard_stats")
+        self.blend = get_kernel(context, "safeguard", "safeguard_blend")
+
+    def split_field(self, queue, src, dst_a, dst_b, pixels, spp, width, wait_for=None):
+        ha, _ = halves(spp)
+        self.split.set_args(src, dst_a, dst_b, np.int32(pixels), np.int32(spp), np.int32(ha),
+                            np.int32(width))
+        return cl.enqueue_nd_range_kernel(queue, self.split, (pixels,), None,
+                                          wait_for=wait_for)
+
+    def run_stats(self, queue, color, m, ma, mb, box, stats, w, h, spp, has_method,
+                  wait_for=None):
+        ha, _ = halves(spp)
+        self.stats.set_args(color, m, ma, mb, box, stats, np.int32(w), np.int32(h),
+                            np.int32(spp), np.int32(ha), np.int32(has_method))
+        return cl.enqueue_nd_range_kernel(queue, self.stats, (w, h), None, wait_for=wait_for)
+
+    def run_blend(self, queue, stats, box, m, out, error, w, h, mode, write_error,
+                  wait_for=None):
+        self.blend.set_args(stats, box, m, out, error, np.int32(w), np.int32(h),
+                            np.int32(mode), np.int32(write_error))
+        return cl.enqueue_nd_range_kernel(queue, self.blend, (w, h), None, wait_for=wait_for)
+
+
+class Safeguarded(Pipeline):
+    #: the weights depend on the colours: a frame with negative radiance is reconstructed
+    #: as its positive and negative parts apart (see :func:`clrecon.core.pipeline.run`)
+    color_linear = False
+
+    """A method's pipeline with the safeguard: ``inner`` (a method name) planned for the
+    frame and for its halves, then ``safeguard_stats`` and ``safeguard_blend``.
+
+    ``blend=False`` keeps the method's image (the error estimate alone); with ``inner ==
+    "box"`` the image is box's and the error its variance (the halves are not re-run).
+    The error image is the temporary ``"error"`` ((H, W) float32: the estimated squared
+    error of the image, linear radiance, mean over RGB).
+    """
+
+    def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
+                 full: Pipeline | None = None):
+        from clrecon.core.pipeline import _make_one as make_pipeline
+
+        if info.spp < 2:
+            raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent "
+                             f"halves), the frame has {info.spp}")
+        super().__init__(context, info)
+        self.name = method
+        self.inner_method, self.inner_knobs, self.blend = method, dict(knobs), bool(blend)
+        self.passes = SafeguardPasses(context)
+        self.full = full if full is not None else make_pipeline(method, context, info, **knobs)
+        # a plan that is the per-pixel average (a frame without blur) is box: its error is
+        # box's variance, and there is nothing to blend
+        is_box = method == "box" or self.full.plan.name == BOX_PLAN
+        self.mode = MODE_BOX if is_box else (MODE_BLEND if blend else MODE_METHOD)
+        ha, hb = halves(info.spp)
+        self.half_a = self.half_b = None
+        if not is_box:
+            self.half_a = make_pipeline(method, context, replace(info, spp=ha), **knobs)
+            self.half_b = self.half_a if hb == ha else make_pipeline(
+                method, context, replace(info, spp=hb), **knobs)
+        npx = info.width * info.height
+        inner_fields = tuple(f for f in FIELDS if f in set(self.full.plan.fields) | {"color"})
+        temps = {"m": npx * 12, "box": npx * 12, "stats": npx * 16, "error": npx * 4}
+        steps = []
+        if not is_box:
+            temps |= {"ma": npx * 12, "mb": npx * 12}
+            for half, n in (("a", ha), ("b", hb)):
+                for f in inner_fields:
+                    temps[f"{half}.{f}"] = npx * n * int(np.prod(FIELDS[f])) * 4
+            steps.append(Step("safeguard_split", inner_fields,
+                              tuple(f"{h}.{f}" for h in "ab" for f in inner_fields),
+                              self._split_step(inner_fields)))
+            steps.append(Step(method, inner_fields, ("m",), self._inner_step()))
+            steps.append(Step(f"{method} (halves)",
+                              tuple(f"{h}.{f}" for h in "ab" for f in inner_fields),
+                              ("ma", "mb"), self._halves_step(inner_fields)))
+        steps.append(Step("safeguard_stats", ("color",) + (() if is_box else ("m", "ma", "mb")),
+                          ("box", "stats"), self._stats_step()))
+        steps.append(Step("safeguard_blend", ("stats", "box") + (() if is_box else ("m",)),
+                          ("out", "error"), self._blend_step()))
+        bounds = tuple(self.full.plan.bounds) + shape_bounds(
+            info, "the halves' pipelines are planned for spp // 2 and spp - spp // 2")
+        suffix = "safeguard" if self.mode == MODE_BLEND else "error"
+        self.set_plan(Plan(method, f"{self.full.plan.name}+{suffix}", inner_fields,
+                           tuple(steps), temps, _unique(bounds)))
+
+    # -- steps -------------------------------------------------------------------------------
+    def _split_step(self, fields):
+        def run(queue, f, wait_for):
+            npx = f.width * f.height
+            evs = []
+            for name in fields:
+                width = int(np.prod(FIELDS[name]))
+                evs.append(("safeguard_split", self.passes.split_field(
+                    queue, f.buffers[name], f.buffers[f"a.{name}"], f.buffers[f"b.{name}"],
+                    npx, f.spp, width, wait_for)))
+            return evs
+        return run
+
+    def _inner_step(self):
+        def run(queue, f, wait_for):
+            self.full(queue, f.samples, f.buffers["m"], wait_for=wait_for)
+            return list(self.full.events)
+        return run
+
+    def _halves_step(self, fields):
+        def run(queue, f, wait_for):
+            ha, hb = halves(f.spp)
+            evs = []
+            for half, n, pipe, out in (("a", ha, self.half_a, "ma"), ("b", hb, self.half_b, "mb")):
+                info = replace(f.info, spp=n)
+                ds = DeviceSamples(f.height, f.width, n,
+                                   {k: f.buffers[f"{half}.{k}"] for k in fields},
+                                   f.samples.coc, info)
+                pipe(queue, ds, f.buffers[out], wait_for=wait_for)
+                evs.extend((f"{name} (halves)", ev) for name, ev in pipe.events)
+            return evs
+        return run
+
+    def _stats_step(self):
+        def run(queue, f, wait_for):
+            b = f.buffers
+            has = self.mode != MODE_BOX
+            m, ma, mb = (b["m"], b["ma"], b["mb"]) if has else (b["box"],) * 3
+            ev = self.passes.run_stats(queue, b["color"], m, ma, mb, b["box"], b["stats"],
+                                       f.width, f.height, f.spp, int(has), wait_for)
+            return [("safeguard_stats", ev)]
+        return run
+
+    def _blend_step(self):
+        def run(queue, f, wait_for):
+            b = f.buffers
+            m = b["m"] if self.mode != MODE_BOX else b["box"]
+            ev = self.passes.run_blend(queue, b["stats"], b["box"], m, b["out"], b["error"],
+                                       f.width, f.height, self.mode, 1, wait_for)
+            return [("safeguard_blend", ev)]
+        return run
+
+    # -- protocol ----------------------------------------------------------------------------
+    def regrow(self, info) -> None:
+        self.__init__(self.context, info, self.inner_method, self.inner_knobs, self.blend)
+
+    def describe(self) -> dict:
+        d = dict(self.full.describe())
+        d["safeguard"] = self.mode == MODE_BLEND
+        if self.mode == MODE_BOX and self.inner_method != "box":
+            d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
+        d["estimate_error"] = True
+        d["plan"] = self.plan.name
+        return d
+
+
+def _unique(bounds):
+    seen, out = set(), []
+    for b in bounds:
+        key = (b.name, b.op, b.limit)
+        if key not in seen:
+            seen.add(key)
+            out.append(b)
+    return tuple(out)

@@ -1,0 +1,30 @@
+"""Pass ``sweep_prepare``: denoising diameters and per-pixel depth order."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from clrecon.core.device import get_kernel
+from clrecon.core.pipeline import DeviceSamples, LocalSize
+
+
+class SweepPrepare:
+    """``kernels/sweep_prepare.cl``: keys (x, y, depth, D) and colours, sorted per pixel."""
+
+    name = "sweep_prepare"
+
+    def __init__(self, context: cl.Context, spp: int, smooth_motion: bool,
+                 local: LocalSize | None = None):
+        self.local = local or LocalSize(16, 4)
+        self.kernel = get_kernel(context, "sweep_prepare", "sweep_prepare",
+                                 {"SPP": spp, "SMOOTH_MOTION": smooth_motion})
+
+    def __call__(self, queue, samples: DeviceSamples, diameter_scale: float, keys: cl.Buffer,
+                 colors: cl.Buffer, wait_for=None) -> cl.Event:
+        c0, c1 = samples.coc
+        self.kernel.set_args(samples["color"], samples["position"], samples["depth"],
+                             samples["motion"], np.int32(samples.width), np.int32(samples.height),
+                             np.float32(c0), np.float32(c1), np.float32(diameter_scale), keys,
+                             colors)
+        g, loc = self.local.for_range(samples.width, samples.height)
+        return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)

@@ -1,0 +1,273 @@
+"""Method ``sweep``: every pass against the literal NumPy reference of Appendices A/B and
+the three-layer variant, on frames whose denoising diameters span all scales."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import assert_close, trusted_reference
+
+import clrecon
+from clrecon.core.camera import CocModel
+from clrecon.core.samples import POSITION_TOLERANCE, SampleBuffer
+from clrecon.methods.sweep import reference as ref
+from clrecon.scenes import get_scene, render_samples
+
+
+def frame(rng, h=11, w=13, s=4, motion=True, ties=True):
+    """Random valid frame: CoC from -7 to +7 px (D 0..14), optional motion, and depth ties
+    (misses at inf and a repeated depth) so that the tie order is exercised."""
+    model = CocModel.from_focus(aperture_px=8.0, focus_depth=4.0)
+    buf = SampleBuffer.zeros(h, w, s, model)
+    buf.position[:] = buf.position - 0.5 + rng.uniform(0.0, 0.999, buf.position.shape)
+    buf.depth[:] = rng.uniform(2.2, 40.0, buf.depth.shape)
+    if ties:
+        buf.depth[rng.uniform(size=buf.depth.shape) < 0.1] = np.inf
+        buf.depth[rng.uniform(size=buf.depth.shape) < 0.1] = 4.0  # in focus, all equal
+    r = np.sqrt(rng.uniform(0, 1, (h, w, s)))
+    a = rng.uniform(0, 2 * np.pi, (h, w, s))
+    buf.lens[:] = np.stack([r * np.cos(a), r * np.sin(a)], -1)
+    buf.time[:] = rng.uniform(0, 1, buf.time.shape)
+    buf.color[:] = rng.exponential(1.0, buf.color.shape)
+    if motion:
+        moving = rng.uniform(size=buf.depth.shape) < 0.3
+        buf.motion[:] = np.where(moving[..., None], rng.normal(0, 4.0, buf.motion.shape), 0.0)
+    return buf.validate()
+
+
+CASES = [
+    dict(scales=2, sort="tile"), dict(scales=2, sort="pixel"),
+    dict(scales=4, sort="tile"), dict(scales=4, sort="pixel"),
+    dict(scales=2, exponent=1.3), dict(scales=2, smooth_motion=False),
+    dict(scales=2, diameter_scale=0.5), dict(scales=2, sort="tile", tile=8),
+    dict(scales=2, tile_merge="serial"), dict(scales=2, tile_merge="bitonic"),
+    dict(scales=4, tile_merge="serial", tile=8), dict(scales=4, tile_merge="bitonic"),
+    dict(scales=2, sort="block"), dict(scales=4, sort="block"),
+    dict(scales=2, sort="block", exponent=1.3), dict(scales=4, sort="block", exponent=1.3),
+    dict(scales=2, sort="block", smooth_motion=False, diameter_scale=0.5),
+    dict(scales=2, sort="block", group=4), dict(scales=4, sort="block", group=2),
+]
+
+
+@pytest.mark.parametrize("knobs", CASES, ids=lambda k: ",".join(f"{a}={b}" for a, b in k.items()))
+def test_sorted_sweep_matches_reference(device, rng, knobs):
+    buf = frame(rng)
+    d = ref.denoising_diameter(buf, knobs.get("smooth_motion", True),
+                               knobs.get("diameter_scale", 1.0))
+    assert d.min() < 1 and d.max() > 7, "the frame must exercise every scale"
+    hw = ("sort", "tile", "tile_merge", "group")
+    want = ref.reconstruct(buf, **{k: v for k, v in knobs.items() if k not in hw})
+    got = clrecon.reconstruct(buf, "sweep", device, **knobs, safeguard=False)
+    assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"sweep {knobs}")
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 1), (3, 17, 2), (9, 5, 8)],
+                         ids=lambda s: "x".join(map(str, s)))
+@pytest.mark.parametrize("knobs", [dict(scales=2, sort="tile"), dict(scales=4, sort="pixel"),
+                                   dict(scales=2, sort="block"), dict(scales=4, sort="block"),
+                                   dict(dof_layers=True)],
+                         ids=["2tile", "4pixel", "2block", "4block", "layers"])
+def test_odd_sizes(device, rng, shape, knobs):
+    buf = frame(rng, *shape)
+    got = clrecon.reconstruct(buf, "sweep", device, **knobs, safeguard=False)
+    want = ref.reconstruct(buf, **{k: v for k, v in knobs.items() if k != "sort"})
+    assert_close(got, want, rtol=2e-4, atol=2e-5, what="sweep")
+
+
+@pytest.mark.parametrize("sort", ["block", "tile", "pixel"])
+@pytest.mark.parametrize("scales", [2, 4])
+def test_positions_on_pixel_edges(device, rng, sort, scales):
+    """Positions on (and up to the validation tolerance past) their pixel's edges: the
+    window is the pixels around, whatever the box filters of a neighbouring pixel say."""
+    buf = frame(rng, h=13, w=14, s=4)
+    ys, xs = np.mgrid[0:13, 0:14]
+    edge = rng.integers(0, 4, buf.depth.shape)
+    tol = 0.9 * POSITION_TOLERANCE
+    lo_x, lo_y = (xs - tol)[..., None], (ys - tol)[..., None]
+    buf.position[..., 0] = np.where(edge == 0, lo_x, np.where(edge == 1, lo_x + 1 + 2 * tol,
+                                                               buf.position[..., 0]))
+    buf.position[..., 1] = np.where(edge == 2, lo_y, np.where(edge == 3, lo_y + 1 + 2 * tol,
+                                                               buf.position[..., 1]))
+    buf.validate()
+    want = ref.reconstruct(buf, scales=scales)
+    got = clrecon.reconstruct(buf, "sweep", device, scales=scales, sort=sort, safeguard=False)
+    assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"edges {sort}")
+
+
+def test_block_sort_is_the_cpu_default_and_falls_back(device, rng):
+    import pyopencl as cl
+
+    res = clrecon.run(frame(rng), "sweep", device, safeguard=False)
+    cpu = bool(device.device.type & cl.device_type.CPU)
+    assert (res.method["sort"] == "block") == cpu
+    if cpu:
+        assert set(res.pass_ms) == {"sweep_block"} and res.method["group"] >= 1
+        # the block sort packs the sample index in 8 bits: 256 spp takes the tile sort, or
+        # the pixel sort where local memory holds no tile (Oclgrind's 32 KiB)
+        res = clrecon.run(frame(rng, h=3, w=5, s=256), "sweep", device, scales=2,
+                          safeguard=False)
+        assert res.method["sort"] in ("tile", "pixel")
+    with pytest.raises(ValueError, match="spp"):
+        clrecon.reconstruct(frame(rng, h=2, w=2, s=256), "sweep", device, sort="block",
+                            safeguard=False)
+
+
+@pytest.mark.parametrize("supers", [1, 2])
+@pytest.mark.parametrize("shape", [(1, 1, 3), (11, 13, 4), (9, 20, 2), (17, 6, 5)],
+                         ids=lambda s: "x".join(map(str, s)))
+@pytest.mark.parametrize("knobs", [dict(scales=2), dict(scales=4),
+                                   dict(scales=2, exponent=1.3, smooth_motion=False)],
+                         ids=["2", "4", "2exp-static"])
+def test_block_kernel_one_or_four_blocks_per_work_item(device, rng, supers, shape, knobs):
+    """sweep_block with one 4x4 block per work-item and with 2x2 blocks sharing one sorted
+    window (the default where local memory holds it): both the reference's image, on
+    sizes that leave partial blocks and work-items whose blocks lie past the image; the
+    local memory the kernel declares is what block_local_bytes says."""
+    import pyopencl as cl
+
+    from clrecon.core.pipeline import DeviceSamples
+    from clrecon.methods.sweep.block import SweepBlock, block_local_bytes
+
+    buf = frame(rng, *shape)
+    h, w, s = shape
+    scales, exponent = knobs["scales"], knobs.get("exponent", 1.0)
+    motion = knobs.get("smooth_motion", True)
+    if block_local_bytes(scales, s, 1, supers) > device.device.local_mem_size:
+        pytest.skip("the device's local memory does not hold the window")
+    sweep = SweepBlock(device.context, s, scales, exponent, motion, supers=supers)
+    info = cl.kernel_work_group_info.LOCAL_MEM_SIZE
+    assert sweep.kernel.get_work_group_info(info, device.device) == \
+        block_local_bytes(scales, s, 1, supers)
+    samples = DeviceSamples.upload(device.queue, buf)
+    out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, h * w * 12)
+    sweep(device.queue, samples, 1.0, out).wait()
+    got = np.empty((h, w, 3), np.float32)
+    cl.enqueue_copy(device.queue, got, out).wait()
+    want = ref.reconstruct(buf, scales=scales, exponent=exponent, smooth_motion=motion)
+    assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"block supers={supers} {knobs}")
+
+
+def test_block_kernel_refuses_bad_supers(device):
+    from clrecon.methods.sweep.block import SweepBlock
+
+    with pytest.raises(ValueError, match="supers: must be one of"):
+        SweepBlock(device.context, 4, 2, supers=3)
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.4])
+def test_dof_layers_match_reference(device, rng, scale):
+    buf = frame(rng, motion=False)
+    want = ref.reconstruct(buf, dof_layers=True, diameter_scale=scale)
+    got = clrecon.reconstruct(buf, "sweep", device, dof_layers=True, diameter_scale=scale,
+                              safeguard=False)
+    assert_close(got, want, rtol=2e-4, atol=2e-5, what="layers")
+
+
+def test_dof_layers_equal_sorted_sweep_without_partial_blends(rng):
+    """Section 3.1: with every blend 0 or 1 and layers separated in depth, the layered sums
+    give exactly Algorithm 2's image (here: the NumPy two-scale sweep)."""
+    buf = frame(rng, motion=False, ties=False)
+    coc = buf.coc()
+    # push every sample to a pure layer: |coc| < 0.5 (narrow) or |coc| > 3 (wide)
+    wide = np.abs(coc) > 1.5
+    buf.depth[:] = np.where(wide, np.where(coc < 0, 2.5, 30.0), 4.0)
+    buf.depth[:] += np.arange(buf.depth.size).reshape(buf.depth.shape) * 1e-5
+    d = ref.denoising_diameter(buf, smooth_motion=False)
+    assert set(np.unique(np.clip((d - 1) / 5, 0, 1))) <= {0.0, 1.0}
+    assert_close(ref.sweep_dof_layers(buf, d), ref.sweep_two_scale(buf, d), rtol=1e-9,
+                 what="layers vs sweep")
+
+
+def test_in_focus_static_frame_is_the_box_filter(device, rng):
+    buf = frame(rng, motion=False)
+    buf.depth[:] = 4.0  # everything in focus: D = 0, only the 1x1 scale
+    box = buf.color.astype(np.float64).mean(axis=2)
+    for knobs in (dict(scales=2), dict(scales=4), dict(dof_layers=True),
+                  dict(scales=2, sort="block"), dict(scales=4, sort="tile")):
+        assert_close(clrecon.reconstruct(buf, "sweep", device, **knobs,
+                                         safeguard=False), box, rtol=1e-5,
+                     what=f"in focus {knobs}")
+
+
+@pytest.mark.parametrize("scales,coc_diameter,plan", [
+    (2, 0.9, "box"), (2, 1.6, "sweep"), (4, 2.9, "box"), (4, 3.5, "sweep")])
+def test_default_plan_is_the_box_filter_when_only_1x1_can_weigh(device, rng, scales,
+                                                                  coc_diameter, plan):
+    """'Model only what a scene requires': diameters <= 1 (<= 3 for four scales) leave
+    every weight at 1/spp on the pixel's own samples; the plan is then the box pass, and
+    the image is still the reference's."""
+    buf = frame(rng, motion=False, ties=False)
+    coc = buf.coc_model.coc(buf.depth)
+    buf.depth[:] = np.where(np.abs(coc) > coc_diameter / 2, 4.0, buf.depth)  # clip to |coc|
+    res = clrecon.run(buf, "sweep", device, scales=scales, safeguard=False)
+    assert (res.method["plan"] == "box") == (plan == "box")
+    assert (set(res.pass_ms) == {"box"}) == (plan == "box")
+    want = ref.reconstruct(buf, scales=scales)
+    assert_close(res.image, want, rtol=2e-4, atol=2e-5, what=f"{scales} {coc_diameter}")
+
+
+def test_flat_field_energy_and_finite(device, rng):
+    buf = frame(rng, h=16, w=16, s=8)
+    buf.color[:] = 0.7
+    for knobs in CASES[:4] + [dict(dof_layers=True)]:
+        img = clrecon.reconstruct(buf, "sweep", device, **knobs, safeguard=False)
+        assert np.isfinite(img).all()
+        assert_close(img, np.full_like(img, 0.7), rtol=1e-5, what=f"flat {knobs}")
+
+
+def test_beats_box_on_a_defocused_scene(device):
+    """Sanity of the whole method on rendered data (the quality report covers every scene)."""
+    from clrecon.metrics import psnr
+
+    sc = get_scene("spheres")
+    ref_img = trusted_reference(sc, 96, 96, 256, seed=1)
+    buf = render_samples(sc, 96, 96, 4, seed=2, device=device)
+    box = psnr(clrecon.reconstruct(buf, "box", device), ref_img)
+    sweep = psnr(clrecon.reconstruct(buf, "sweep", device, safeguard=False), ref_img)
+    assert sweep > box + 1.0
+
+
+def test_knob_errors(device, rng):
+    buf = frame(rng)
+    with pytest.raises(ValueError, match="scales"):
+        clrecon.reconstruct(buf, "sweep", device, scales=3, safeguard=False)
+    with pytest.raises(ValueError, match="sort"):
+        clrecon.reconstruct(buf, "sweep", device, sort="bubble", safeguard=False)
+    with pytest.raises(ValueError, match="local memory"):
+        clrecon.reconstruct(buf, "sweep", device, tile=512, safeguard=False)
+    with pytest.raises(TypeError, match="unknown knobs"):
+        clrecon.reconstruct(buf, "sweep", device, nonsense=1, safeguard=False)
+
+
+def test_describe_reports_mode_and_knobs(device, rng):
+    res = clrecon.run(frame(rng), "sweep", device, scales=4, sort="pixel", safeguard=False)
+    assert res.method["mode"] == "4-scale" and res.method["sort"] == "pixel"
+    assert set(res.pass_ms) == {"sweep_prepare", "sweep_resolve"}
+    res = clrecon.run(frame(rng), "sweep", device, sort="block", group=2, safeguard=False)
+    assert res.method["sort"] == "block" and res.method["group"] == 2
+    assert set(res.pass_ms) == {"sweep_block"}
+    res = clrecon.run(frame(rng, motion=False), "sweep", device, safeguard=False)
+    assert res.method["smooth_motion"] is False  # no motion in the frame: no motion term
+    res = clrecon.run(frame(rng), "sweep", device, dof_layers=True, safeguard=False)
+    assert res.method["mode"] == "dof_layers"
+    assert set(res.pass_ms) == {"sweep_layer_sums", "sweep_layer_resolve"}
+
+
+@pytest.mark.parametrize("knobs", [dict(scales=2), dict(scales=4), dict(dof_layers=True)],
+                         ids=["2-scale", "4-scale", "dof-layers"])
+@pytest.mark.parametrize("coc", [0.0, 0.45, 1.4], ids=lambda c: f"coc{c}")
+def test_box_equivalent_specialization(device, rng, knobs, coc):
+    """With every denoising diameter inside the narrow block the plan is the box pass; the
+    full sweep (specialize=False) gives the same image, and a wider frame is not specialized."""
+    buf = frame(rng, motion=False, ties=False)
+    buf.depth[:] = 4.0  # the focus depth of frame(): coc 0 ...
+    if coc:  # ... or a CoC of `coc` px everywhere
+        buf.depth[:] = buf.coc_model.depth_at_coc(coc)
+    buf.lens[:] = 0.0
+    buf.validate()
+    res = clrecon.run(buf, "sweep", device, **knobs, safeguard=False)
+    narrow = 3.0 if knobs.get("scales") == 4 else 1.0
+    expect_box = 2 * coc <= narrow
+    assert (res.method["plan"] == "box") is expect_box
+    assert (set(res.pass_ms) == {"box"}) is expect_box
+    full = clrecon.reconstruct(buf, "sweep", device, specialize=False, **knobs, safeguard=False)
+    assert_close(res.image, full, rtol=1e-5, atol=1e-6, what="specialized vs full sweep")
