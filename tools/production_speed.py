@@ -17,7 +17,7 @@ import time
 from datetime import datetime, timezone
 
 import clrecon
-from clrecon.bench.trade import _Oidn, _Runner
+from clrecon.bench.timing import OidnRun, PipelineRun
 from clrecon.core.device import get_device
 from clrecon.scenes import get_scene, render_samples
 
@@ -65,9 +65,9 @@ def main() -> None:
     buf = render_samples(get_scene(args.scene), w, h, args.spp, seed=100 + args.spp, device=dev)
     info = buf.inspect()
     settings = SETTINGS + ([] if args.no_slow else SLOW)
-    runners = [(name, method, knobs, _Runner(dev, buf, method, knobs))
+    runners = [(name, method, knobs, PipelineRun(dev, buf, method, knobs))
                for name, method, knobs in settings]
-    oidn = _Oidn(dev, buf, "high")
+    oidn = OidnRun(dev, buf, "high")
     for *_, r in runners:  # warm-up: builds, PoCL's per-shape specialisation
         r.run()
     oidn.run()

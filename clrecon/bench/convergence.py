@@ -59,7 +59,8 @@ from typing import Any
 
 import numpy as np
 
-from clrecon.bench.trade import TRADES, _duration
+from clrecon.bench.timing import duration_text
+from clrecon.bench.trade import TRADES
 from clrecon.core.device import Device, DeviceSpec, get_device
 from clrecon.core.errors import ClreconError
 from clrecon.core.fsutil import write_atomic
@@ -414,10 +415,10 @@ class _Eta:
             self.spent += seconds
 
     def line(self) -> str:
-        so_far = _duration(time.perf_counter() - self.t0)
+        so_far = duration_text(time.perf_counter() - self.t0)
         if not self.done:
             return f"{so_far} so far"
-        return f"{so_far} so far, about {_duration(self.left * self.spent / self.done)} left"
+        return f"{so_far} so far, about {duration_text(self.left * self.spent / self.done)} left"
 
 
 def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = None,
@@ -506,7 +507,7 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
             refs.append(ref)
             if status and not cached:
                 status(f"reference of {name} ({ref_spps[name]} spp, seed {seed}) rendered in "
-                       f"{_duration(time.perf_counter() - t)}")
+                       f"{duration_text(time.perf_counter() - t)}")
         report["references"][name] = {"ref_spp": ref_spps[name],
                                       "noise_var": reference_noise(*refs)}
         ref = refs[0]
@@ -593,7 +594,7 @@ def _measure_spp(dev, scene, w, h, spp, seeds, group, ref, ref_spp, cache: Path,
         eta.step(spp * (len(group) + 1), dt)
         if status:
             status(f"{scene.name} {spp} spp seed {i + 1}/{seeds}: {len(missing)} of "
-                   f"{len(group)} settings run in {_duration(dt)}; {eta.line()}")
+                   f"{len(group)} settings run in {duration_text(dt)}; {eta.line()}")
     for s in todo:
         if s.key in errors:
             done[(s.key, spp)] = {"error": errors[s.key], "seeds": sample_seeds}

@@ -8,25 +8,15 @@ references rendered with different seeds. Box quality is measured against the fi
 from __future__ import annotations
 
 import json
-import statistics
 import time
 from pathlib import Path
 
+from clrecon.bench.timing import median_wall_s
 from clrecon.core.device import get_device
 from clrecon.core.pipeline import run
 from clrecon.io import save_image
 from clrecon.metrics import evaluate, psnr
 from clrecon.scenes import SCENES, get_scene, render_reference, render_samples
-
-
-def _median_time(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def foundation_report(scenes=None, size=(512, 512), spps=(4, 8, 16), ref_spp=None,
@@ -48,7 +38,7 @@ def foundation_report(scenes=None, size=(512, 512), spps=(4, 8, 16), ref_spp=Non
 
     for name in scenes:
         scene = get_scene(name)
-        t = _median_time(lambda sc=scene: render_samples(sc, w, h, 16, seed=0, device=dev),
+        t = median_wall_s(lambda sc=scene: render_samples(sc, w, h, 16, seed=0, device=dev),
                          repeats)
         step()
         t0 = time.perf_counter()

@@ -15,20 +15,17 @@ from __future__ import annotations
 
 import json
 import math
-import statistics
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 import numpy as np
-import pyopencl as cl
 
+from clrecon.bench.timing import time_pipeline
 from clrecon.core.device import Device, DeviceSpec, get_device
 from clrecon.core.pipeline import (
     METHODS,
-    DeviceSamples,
     _load_methods,
-    make_pipeline,
     method_knobs,
     run,
 )
@@ -215,26 +212,6 @@ def crop_montage(images: Sequence[np.ndarray], centre: tuple[int, int], crop: in
 
 # -- the table -----------------------------------------------------------------------------
 
-def _time_variant(dev: Device, buf, method: str, knobs: dict, repeats: int):
-    """Build once, upload once, warm up, time ``repeats`` runs; the last run's image."""
-    pipe = make_pipeline(method, dev.context, buf.inspect(), **knobs)
-    samples = DeviceSamples.upload(dev.queue, buf, pipe.fields)
-    out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, size=buf.height * buf.width * 12)
-    pipe(dev.queue, samples, out).wait()  # warm-up
-    totals, per_pass = [], {}
-    for _ in range(repeats):
-        ev = pipe(dev.queue, samples, out)
-        ev.wait()
-        times = pipe.pass_times_ms()
-        totals.append(sum(times.values()))
-        for name, ms in times.items():
-            per_pass.setdefault(name, []).append(ms)
-    image = np.empty((buf.height, buf.width, 3), np.float32)
-    cl.enqueue_copy(dev.queue, image, out)
-    pass_ms = {k: statistics.median(v) for k, v in per_pass.items()}
-    return image, statistics.median(totals), pass_ms, pipe.describe()
-
-
 
 def frame_sources(scenes, inputs) -> tuple[list[str], list[tuple[str, str]], list[str]]:
     """``(scenes, inputs, input names)`` of a report: built-in scenes (default: all, or none
@@ -343,7 +320,7 @@ def methods_table(scenes: Sequence[str] | None = None,
     for name, buf, ref, rspp in frames():
         images = []
         for label, method, knobs in variants:
-            image, ms, pass_ms, desc = _time_variant(dev, buf, method, knobs, repeats)
+            image, ms, pass_ms, desc = time_pipeline(dev, buf, method, knobs, repeats)
             try:
                 q = evaluate(image, ref)
             except ValueError as exc:

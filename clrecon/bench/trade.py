@@ -31,11 +31,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyopencl as cl
 
 from clrecon.bench.table import CROP, Progress, _check_variants, frame_sources, hardest_region
+from clrecon.bench.timing import OidnRun, PipelineRun, duration_text
 from clrecon.core.device import Device, DeviceSpec, get_device
-from clrecon.core.pipeline import METHODS, DeviceSamples, _load_methods, make_pipeline
+from clrecon.core.pipeline import METHODS, _load_methods
 from clrecon.io import load_image, load_samples, save_image, tonemap_srgb
 from clrecon.metrics import evaluate
 from clrecon.scenes import get_scene, render_reference, render_samples
@@ -120,71 +120,6 @@ def _reference(scene, w, h, spp, dev, cache: Path) -> np.ndarray:
     cache.mkdir(parents=True, exist_ok=True)
     save_image(path, ref)
     return ref
-
-
-class _Runner:
-    """One variant, built and uploaded once: ``run()`` -> ms of one paired round."""
-
-    def __init__(self, dev: Device, buf, method: str, knobs: dict):
-        self.dev = dev
-        self.pipe = make_pipeline(method, dev.context, buf.inspect(), **knobs)
-        self.samples = DeviceSamples.upload(dev.queue, buf, self.pipe.fields)
-        self.out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE,
-                             size=buf.height * buf.width * 12)
-        self.shape = (buf.height, buf.width, 3)
-        self.pass_ms: dict[str, list[float]] = {}
-
-    def describe(self) -> dict:
-        return self.pipe.describe()
-
-    def run(self) -> float:
-        self.pipe(self.dev.queue, self.samples, self.out).wait()
-        times = self.pipe.pass_times_ms()
-        for k, v in times.items():
-            self.pass_ms.setdefault(k, []).append(v)
-        return float(sum(times.values()))
-
-    def image(self) -> np.ndarray:
-        img = np.empty(self.shape, np.float32)
-        cl.enqueue_copy(self.dev.queue, img, self.out)
-        return img
-
-
-class _Oidn:
-    """The box image denoised by Open Image Denoise on the CPU; ``run()`` -> wall ms."""
-
-    def __init__(self, dev: Device, buf, quality: str):
-        import pyoidn
-
-        self.pyoidn, self.quality = pyoidn, quality
-        self.box = _Runner(dev, buf, "box", {})
-        self.pass_ms: dict[str, list[float]] = {}
-        self.result = None
-
-    def describe(self) -> dict:
-        return {"method": "oidn", "mode": f"box + OIDN {self.quality} (CPU, hdr)",
-                "pyoidn": _version("pyoidn")}
-
-    def run(self) -> float:
-        box_ms = self.box.run()
-        t0 = time.perf_counter()
-        self.result = self.pyoidn.denoise(self.box.image(), hdr=True, quality=self.quality)
-        oidn_ms = (time.perf_counter() - t0) * 1e3
-        self.pass_ms.setdefault("box", []).append(box_ms)
-        self.pass_ms.setdefault("oidn", []).append(oidn_ms)
-        return box_ms + oidn_ms
-
-    def image(self) -> np.ndarray:
-        return np.asarray(self.result, np.float32)
-
-
-def _version(dist: str) -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version(dist)
-    except PackageNotFoundError:
-        return "?"
 
 
 def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = None,
@@ -337,17 +272,6 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     return report
 
 
-def _duration(seconds: float) -> str:
-    seconds = max(0.0, float(seconds))
-    if seconds < 10:
-        return f"{seconds:.1f} s"
-    if seconds < 90:
-        return f"{seconds:.0f} s"
-    if seconds < 5400:
-        return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.1f} h"
-
-
 class _Eta:
     """The time a trade has left, from what it measured so far. A reference costs its
     pixels x spp at the rate of those rendered; a measured frame (its buffer, every
@@ -395,18 +319,18 @@ class _Eta:
     def line(self, what: str, seconds: float) -> str:
         left = self.left()
         eta = "the time left is estimated once a reference and a frame are done" \
-            if left is None else f"about {_duration(left)} left"
-        return (f"{what} in {_duration(seconds)}; "
-                f"{_duration(time.perf_counter() - self.t0)} so far, {eta}")
+            if left is None else f"about {duration_text(left)} left"
+        return (f"{what} in {duration_text(seconds)}; "
+                f"{duration_text(time.perf_counter() - self.t0)} so far, {eta}")
 
 
 def _measure(dev, buf, variants, oidn: bool, repeats: int):
     """Build, warm up and run every variant in paired rounds: (label, method, knobs, runner,
     median ms, median ratio to box)."""
-    entries = [(lab, m, k, _Runner(dev, buf, m, k)) for lab, m, k in variants]
+    entries = [(lab, m, k, PipelineRun(dev, buf, m, k)) for lab, m, k in variants]
     box = next(r for lab, m, k, r in entries if m == "box" and not k)
     if oidn:
-        entries += [(f"oidn {q}", "oidn", {"quality": q}, _Oidn(dev, buf, q))
+        entries += [(f"oidn {q}", "oidn", {"quality": q}, OidnRun(dev, buf, q))
                     for q in OIDN_QUALITIES]
     for entry in entries:
         entry[3].run()  # warm-up: PoCL compiles work-group functions on the first launch

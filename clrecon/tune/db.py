@@ -62,7 +62,8 @@ class Lookup:
     config : dict or None
         The configuration (``None``: the runtime chooses the local size).
     source : str
-        ``"env"``, ``"exact"``, ``"vendor"``, ``"default"`` or ``"runtime"``.
+        ``"env"``, ``"exact"``, ``"vendor"``, ``"default"`` or ``"runtime"``; ``"override"``
+        from :func:`clrecon.tune.runtime.override_tuning`.
     path : str or None
         The tuning file it came from (``"exact"`` and ``"vendor"`` only).
     """

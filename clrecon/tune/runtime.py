@@ -14,8 +14,11 @@ check the built kernel with :func:`check_kernel_fits`.
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import os
-from typing import TYPE_CHECKING
+from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING, Union
 
 import pyopencl as cl
 
@@ -28,6 +31,48 @@ if TYPE_CHECKING:
     from clrecon.core.device import DeviceInfo
 
 _cache: dict[tuple, Lookup] = {}
+
+#: what :func:`override_tuning` set for this thread (or task): None, "default" or a mapping
+_override: contextvars.ContextVar = contextvars.ContextVar("clrecon_tuning", default=None)
+
+Override = Union[str, Mapping[str, Union[dict, None]]]
+
+
+@contextlib.contextmanager
+def override_tuning(override: Override) -> Iterator[None]:
+    """Within the block, pipelines built in this thread take their launch configurations
+    from ``override`` instead of the tuning database.
+
+    ``"default"``: every pass its default for the device's type, fitted to the device
+    (lookup level ``"default"``), as if no tuning entry existed; what the device bench
+    compares tuned runs against. A mapping ``{pass: config}``: those passes get exactly
+    that configuration (``None``: the runtime chooses), source ``"override"``, and the
+    pass refuses one the device cannot launch, as it does an environment override; passes
+    not named take the usual chain. The environment override ``CLRECON_TUNE_<PASS>`` is
+    the same thing for a whole process; this one wins over it inside the block."""
+    if isinstance(override, str):
+        if override != "default":
+            raise ValueError(f"override_tuning: expected 'default' or a mapping of pass "
+                             f"names to configurations, got {override!r}")
+        value: object = "default"
+    elif isinstance(override, Mapping):
+        value = {}
+        for name, cfg in override.items():
+            if name not in SPECS:
+                raise ValueError(f"override_tuning: unknown pass {name!r} (passes: "
+                                 f"{', '.join(sorted(SPECS))})")
+            if cfg is not None and not isinstance(cfg, dict):
+                raise ValueError(f"override_tuning: {name}: expected a dict or None, "
+                                 f"got {cfg!r}")
+            value[name] = None if cfg is None else dict(cfg)
+    else:
+        raise ValueError(f"override_tuning: expected 'default' or a mapping, got "
+                         f"{type(override).__name__}")
+    token = _override.set(value)
+    try:
+        yield
+    finally:
+        _override.reset(token)
 
 
 def _halve_to(n: int, limit: int) -> int:
@@ -88,6 +133,12 @@ def tuned(context: cl.Context, pass_name: str, info: FrameInfo) -> Lookup:
     """The configuration ``pass_name`` should use for frames like ``info`` on ``context``."""
     spec = SPECS[pass_name]
     dev = context.devices[0]
+    forced = _override.get()
+    if forced == "default":
+        return Lookup(default_config(pass_name, describe(dev)), "default", None)
+    if isinstance(forced, dict) and pass_name in forced:
+        cfg = forced[pass_name]
+        return Lookup(None if cfg is None else dict(cfg), "override", None)
     bucket = bucket_for(info.width, info.height, info.spp)
     digest = source_hash(spec.kernel_file)
     env = os.environ.get(f"CLRECON_TUNE_{pass_name.upper()}")

@@ -8,7 +8,8 @@ import statistics
 
 import pytest
 
-from clrecon.bench.trade import _Runner, trade_variants
+from clrecon.bench.timing import PipelineRun
+from clrecon.bench.trade import trade_variants
 from clrecon.scenes import get_scene, render_samples
 
 pytestmark = pytest.mark.benchmark_suite
@@ -25,7 +26,7 @@ def frame(device):
 @pytest.mark.parametrize("variant", VARIANTS, ids=[v[0] for v in VARIANTS])
 def test_static_frame_cost(benchmark, device, frame, variant):
     label, method, knobs = variant
-    ours, box = _Runner(device, frame, method, knobs), _Runner(device, frame, "box", {})
+    ours, box = PipelineRun(device, frame, method, knobs), PipelineRun(device, frame, "box", {})
     ours.run(), box.run()  # warm-up
     ratios = [ours.run() / max(box.run(), 1e-6) for _ in range(7)]
     benchmark.pedantic(ours.run, rounds=7, warmup_rounds=1)

@@ -262,7 +262,7 @@ class SweepPipeline(Pipeline):
                 want = (found.config or default_config("sweep_block", describe(dev)))["group"]
                 # a group tuned at fewer spp may not fit this frame's windows: the largest
                 # that does (none: SweepBlock names what one block needs and the limit)
-                group = want if found.source == "env" else \
+                group = want if found.source in ("env", "override") else \
                     fit_group(dev, self.scales, spp, want) or 1
                 self.tuning["sweep_block"] = found.source
             else:
@@ -289,7 +289,7 @@ class SweepPipeline(Pipeline):
             config = found.config or default_config("sweep_resolve", describe(dev))
             self.tuning["sweep_resolve"] = found.source
         if config["sort"] == "tile" and "tile" not in given and \
-                self.tuning["sweep_resolve"] != "env":
+                self.tuning["sweep_resolve"] not in ("env", "override"):
             # a tile tuned (or defaulted) at fewer spp may not fit this frame's samples in
             # local memory: the largest that does, else the pixel sort (none needed)
             fitted = fit_tile(dev, self.scales, spp, int(config["tile"]))
