@@ -7,8 +7,9 @@ import glob
 import json
 import os
 import sys
-import time
 from pathlib import Path
+
+from clrecon.cli.common import Bar, check_knob_names, device_list, parse_knobs, timed
 
 SAMPLE_FORMATS = ("npz", "bin", "txt", "exr")
 
@@ -31,7 +32,7 @@ def _frames(n) -> int:
     return n
 
 
-def _render_sequence(args, bar_cls, what: str, render, save, ext: str):
+def _render_sequence(args, what: str, render, save, ext: str):
     """Render frame ``k`` of the animated scene with ``render(scene_k, w, h, seed)`` and
     ``save(path, result)`` it as ``DIR/<name>_<k>.<ext>``: ``(frames, size, seconds, dir,
     scene)``."""
@@ -42,46 +43,49 @@ def _render_sequence(args, bar_cls, what: str, render, save, ext: str):
     out = _sequence_dir("-o", args.output)
     scene = get_scene(args.name)
     w, h = args.size or scene.default_size
-    bar = bar_cls(f"{what} {args.name}", unit="frame")
-    t0 = time.perf_counter()
-    try:
+    bar = Bar(f"{what} {args.name}", unit="frame")
+
+    def frames():
         for k in range(n):
             result = render(frame_of(scene, k), w, h, frame_seed(args.seed, k))
             save(str(out / f"{frame_name(args.name, k)}.{ext}"), result)
             bar(k + 1, n)
+
+    try:
+        _, seconds = timed(frames)
     finally:
         bar.close()
-    return n, (w, h), time.perf_counter() - t0, out, scene
+    return n, (w, h), seconds, out, scene
 
 
-def scene_sequence(args, bar_cls) -> int:
+def scene_sequence(args) -> int:
     """``clrecon scene NAME --frames N -o DIR``: DIR/NAME_0000.<format>, ..."""
     from clrecon.io import save_samples
     from clrecon.scenes import render_samples
 
     n, (w, h), dt, out, _ = _render_sequence(
-        args, bar_cls, "scene", lambda sc, w, h, seed: render_samples(
+        args, "scene", lambda sc, w, h, seed: render_samples(
             sc, w, h, args.spp, seed=seed, device=args.device), save_samples, args.format)
     print(f"{args.name}: {n} frames {w}x{h}, {args.spp} spp in {dt:.1f} s "
           f"-> {out}/{frame_name(args.name, 0)}.{args.format} ...")
     return 0
 
 
-def reference_sequence(args, bar_cls) -> int:
+def reference_sequence(args) -> int:
     """``clrecon reference NAME --frames N -o DIR``: DIR/NAME_0000.exr, ... (the stems of
     ``scene --frames``, so ``batch --references DIR`` pairs them)."""
     from clrecon.io import save_image
     from clrecon.scenes import render_reference
 
     n, (w, h), dt, out, scene = _render_sequence(
-        args, bar_cls, "reference", lambda sc, w, h, seed: render_reference(
+        args, "reference", lambda sc, w, h, seed: render_reference(
             sc, w, h, args.spp, seed=seed, device=args.device), save_image, "exr")
     spp = args.spp or scene.reference_spp
     print(f"{args.name}: {n} reference frames {w}x{h} at {spp} spp in {dt:.1f} s -> {out}/")
     return 0
 
 
-def cmd_batch(args, bar_cls, parse_knobs, check_knob_names) -> int:
+def cmd_batch(args) -> int:
     from clrecon.batch import batch
 
     knobs = parse_knobs(args.knob)
@@ -92,7 +96,7 @@ def cmd_batch(args, bar_cls, parse_knobs, check_knob_names) -> int:
 
         devices = ([d.index for d in list_devices()] if args.devices == "all"
                    else list(args.devices))
-    bar = bar_cls(f"batch {args.method}", unit="frame")
+    bar = Bar(f"batch {args.method}", unit="frame")
     done = [0]
     total = [0]
 
@@ -169,7 +173,7 @@ def compare_sequences_cmd(args) -> int:
     return 0
 
 
-def add_batch_parser(sub, dev, device_list) -> None:
+def add_batch_parser(sub) -> None:
     sp = sub.add_parser("batch", help="reconstruct many frames on every device or a Dask "
                         "cluster, resumable, with a JSON summary")
     sp.add_argument("inputs", nargs="+", help="sample files or globs (.bin/.txt/.exr/.npz)")
@@ -190,3 +194,4 @@ def add_batch_parser(sub, dev, device_list) -> None:
                     help="score each frame against DIR/<stem>.exr")
     sp.add_argument("--no-resume", action="store_true",
                     help="reconstruct frames whose outputs exist too")
+    sp.set_defaults(fn=cmd_batch)

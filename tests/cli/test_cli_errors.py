@@ -176,11 +176,11 @@ INJECTED = [
                          ids=[f"{w}-{type(m('S', 'O')).__name__}" for w, m, _ in INJECTED])
 def test_every_family_is_one_line(files, tmp_path, capsys, monkeypatch, where, make, words):
     """Families that are hard to provoke for real, raised where the library raises them."""
-    import clrecon.core.pipeline
+    import clrecon.api
     import clrecon.io
 
     src, out = str(files / "s.npz"), str(tmp_path / "o.exr")
-    mod = clrecon.io if where in ("load_samples", "save_image") else clrecon.core.pipeline
+    mod = clrecon.io if where in ("load_samples", "save_image") else clrecon.api
     monkeypatch.setattr(mod, where, _raiser(make(src, out)))
     assert main(["reconstruct", src, "-o", out]) == 2
     _one_line(capsys, *(w.format(s=src, o=out) for w in words))
@@ -188,14 +188,42 @@ def test_every_family_is_one_line(files, tmp_path, capsys, monkeypatch, where, m
 
 def test_type_error_keeps_its_traceback(files, tmp_path, monkeypatch):
     """A TypeError that is not a knob's is a bug: it propagates (a traceback), not rc 2."""
-    import clrecon.core.pipeline
+    import clrecon.api
 
-    monkeypatch.setattr(clrecon.core.pipeline, "run", _raiser(TypeError("unsupported operand")))
+    monkeypatch.setattr(clrecon.api, "run", _raiser(TypeError("unsupported operand")))
     with pytest.raises(TypeError, match="unsupported operand"):
         main(["reconstruct", str(files / "s.npz"), "-o", str(tmp_path / "o.exr")])
-    monkeypatch.setattr(clrecon.core.pipeline, "run", _raiser(AttributeError("no attribute x")))
+    monkeypatch.setattr(clrecon.api, "run", _raiser(AttributeError("no attribute x")))
     with pytest.raises(AttributeError):
         main(["reconstruct", str(files / "s.npz"), "-o", str(tmp_path / "o.exr")])
+
+
+@pytest.mark.parametrize("argv,where,exc", [
+    (["devices"], ("clrecon.core.device", "list_devices"), KeyError("index")),
+    (["compare", "{img}", "{img}"], ("clrecon.metrics", "evaluate"), TypeError("bug")),
+    (["scene", "spheres", "--size", "8x8", "-o", "{out}.npz"],
+     ("clrecon.scenes", "render_samples"), ZeroDivisionError("bug")),
+], ids=["devices-KeyError", "compare-TypeError", "scene-ZeroDivisionError"])
+def test_a_bug_in_any_command_keeps_its_traceback(files, tmp_path, monkeypatch, argv, where,
+                                                  exc):
+    """main catches only the families a user can cause: a bug in a command propagates."""
+    import importlib
+
+    monkeypatch.setattr(importlib.import_module(where[0]), where[1], _raiser(exc))
+    argv = [a.format(img=files / "img.exr", out=tmp_path / "s") for a in argv]
+    with pytest.raises(type(exc)):
+        main(argv)
+
+
+def test_subprocess_bug_exits_1_with_a_traceback(tmp_path):
+    code = ("import sys, clrecon.core.device as d; from clrecon.cli import main\n"
+            "def bug(*a, **k): raise TypeError('unsupported operand')\n"
+            "d.list_devices = bug; sys.exit(main(['devices']))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 1 and "Traceback" in r.stderr, r.stderr
+    assert "TypeError: unsupported operand" in r.stderr and "clrecon devices: error" \
+        not in r.stderr
 
 
 def test_debug_shows_the_traceback(tmp_path):
