@@ -17,6 +17,8 @@ import sys
 import numpy as np
 
 import clrecon
+from clrecon.bench.options import parse_size
+from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.scenes import get_scene, render_reference, render_samples
 from clrecon.scenes.animate import frame_of, frame_seed
@@ -36,7 +38,7 @@ def main(argv=None):
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("-o", "--output", default=None)
     a = ap.parse_args(argv)
-    w, h = (int(v) for v in a.size.split("x"))
+    w, h = parse_size(a.size)
     dev = get_device()
     try:
         import pyoidn
@@ -72,11 +74,7 @@ def main(argv=None):
                          f"{q['mean_flip']:.4f} | {q['flicker_rmse']:.4f} | "
                          f"{q['temporal_psnr']:.2f} |")
             print(lines[-1], file=sys.stderr)
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if a.output:
-        with open(a.output, "w") as f:
-            f.write(text)
+    emit_page(lines, a.output)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ Also the host ``validate()`` + ``inspect()`` against one NumPy reduction over al
 from __future__ import annotations
 
 import argparse
-import platform
 import statistics
 import sys
 import time
@@ -28,8 +27,12 @@ import numpy as np
 import pyopencl as cl
 
 import clrecon
+from clrecon.api import make_pipeline
+from clrecon.bench.options import parse_size
+from clrecon.bench.scripts import emit_page
+from clrecon.bench.timing import host_cpu
 from clrecon.core.device import get_device
-from clrecon.core.pipeline import DeviceSamples, make_pipeline
+from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import FIELDS
 from clrecon.scenes import get_scene, render_samples
 
@@ -53,16 +56,6 @@ def old_path(dev, buf, method, knobs):
     return (time.perf_counter() - t0) * 1e3
 
 
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="1280x720")
@@ -70,7 +63,7 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("-o", "--output", default=None)
     a = ap.parse_args(argv)
-    w, h = (int(v) for v in a.size.split("x"))
+    w, h = parse_size(a.size)
     dev = get_device()
     print(f"rendering deep {w}x{h} {a.spp} spp (two seeds) ...", file=sys.stderr)
     frames = [render_samples(get_scene("deep"), w, h, spp=a.spp, seed=s, device=dev)
@@ -107,7 +100,7 @@ def main(argv=None):
         red.append((time.perf_counter() - t) * 1e3)
     med = statistics.median
     lines = [f"# Host overhead per frame: deep {w}x{h}, {a.spp} spp", "",
-             f"Device: {dev.info.label}. Host CPU: {cpu_name()}. {a.rounds} paired rounds, "
+             f"Device: {dev.info.label}. Host CPU: {host_cpu()}. {a.rounds} paired rounds, "
              "medians. Command: `.venv/bin/python tools/frame_overhead.py "
              f"--size {a.size} --spp {a.spp} --rounds {a.rounds}`.", "",
              "`device work` = upload (wall, blocking copy of all six fields) + device "
@@ -128,11 +121,7 @@ def main(argv=None):
     lines += ["", f"Host `validate()` {med(host_v):.0f} ms + `inspect()` {med(host_i):.0f} ms "
               f"= {med(host_v) + med(host_i):.0f} ms, against one NumPy reduction over all "
               f"fields {med(red):.0f} ms: {(med(host_v) + med(host_i)) / med(red):.2f}x.", ""]
-    text = "\n".join(lines)
-    print(text)
-    if a.output:
-        with open(a.output, "w") as f:
-            f.write(text)
+    emit_page(lines, a.output)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ import argparse
 import numpy as np
 
 import clrecon
+from clrecon.bench.options import parse_size
 from clrecon.core.device import get_device
 from clrecon.io import tonemap_srgb
 from clrecon.scenes import get_scene, render_reference, render_samples
@@ -44,7 +45,7 @@ def main() -> None:
     ap.add_argument("--no-oidn", action="store_true")
     ap.add_argument("--seed", type=int, default=108)
     args = ap.parse_args()
-    w, h = (int(v) for v in args.size.lower().split("x"))
+    w, h = parse_size(args.size)
     dev = get_device(None)
     print(f"{args.size}, {args.spp} spp, samples seed {args.seed}; MSE of the sRGB image; "
           "share = the region's part of the frame's squared error\n")

@@ -10,16 +10,13 @@ per round, medians over the rounds; ratios are the meaningful numbers on a share
 from __future__ import annotations
 
 import argparse
-import platform
 import statistics
-import subprocess
 import time
 from datetime import datetime, timezone
 
 import clrecon
-from clrecon.bench.timing import OidnRun, PipelineRun
-from clrecon.core.device import get_device
-from clrecon.scenes import get_scene, render_samples
+from clrecon.bench.scripts import add_frame_options, emit_page, frame_of
+from clrecon.bench.timing import OidnRun, PipelineRun, host_cpu
 
 SETTINGS = [
     ("box", "box", {}),
@@ -39,31 +36,14 @@ SETTINGS = [
 SLOW = [("splat paper (mip_radius=0)", "splat", {"mip_radius": 0, "safeguard": False})]
 
 
-def _cpu() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=False).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "?"
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--scene", default="deep")
-    ap.add_argument("--size", default="1280x720")
-    ap.add_argument("--spp", type=int, default=8)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--device", default=None)
+    add_frame_options(ap, repeats=3)
     ap.add_argument("--no-slow", action="store_true", help="leave out the paper's splat plan")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
-    w, h = (int(v) for v in args.size.split("x"))
-    dev = get_device(args.device)
-    buf = render_samples(get_scene(args.scene), w, h, args.spp, seed=100 + args.spp, device=dev)
-    info = buf.inspect()
+    dev, buf = frame_of(args)
+    w, h, info = buf.width, buf.height, buf.inspect()
     settings = SETTINGS + ([] if args.no_slow else SLOW)
     runners = [(name, method, knobs, PipelineRun(dev, buf, method, knobs))
                for name, method, knobs in settings]
@@ -96,7 +76,7 @@ def main() -> None:
     lines = [
         f"# Speed at production resolution: {args.scene} {w}x{h}, {args.spp} spp",
         "",
-        f"Device: {dev.info.label}. Host CPU: {_cpu()}. {args.repeats} paired rounds "
+        f"Device: {dev.info.label}. Host CPU: {host_cpu()}. {args.repeats} paired rounds "
         f"(the paper's splat plan: one), medians; "
         f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC. Frame: max |CoC| "
         f"{info.max_abs_coc:.1f} px, max |motion| {info.max_abs_motion:.1f} px. Command: "
@@ -115,11 +95,7 @@ def main() -> None:
     for name, *_ in settings:
         lines.append(f"| {name} | {med[name]:.1f} | {med[name] / lay:.2f} | "
                      f"{o / med[name]:.1f} | {wmed[name]:.0f} | {o / wmed[name]:.2f} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        with open(args.out, "w") as f:
-            f.write(text)
+    emit_page(lines, args.out)
 
 
 if __name__ == "__main__":

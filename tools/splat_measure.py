@@ -10,6 +10,7 @@ tables: quality (SSIM, PSNR, FLIP against the converged reference) and device ms
 from __future__ import annotations
 
 import argparse
+import functools
 import statistics
 import sys
 import time
@@ -17,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from clrecon.core.pipeline import run
+from clrecon.api import run
+from clrecon.bench.timing import paired_rounds
 from clrecon.io import load_image, load_samples, save_image, save_samples
 from clrecon.metrics import evaluate
 from clrecon.scenes import get_scene, render_reference, render_samples
@@ -42,25 +44,23 @@ def inputs(d: Path, scene: str, size=(512, 512)):
 
 
 def measure(buf, variants: dict, repeats: int, ref=None):
-    """Interleaved warm runs of every variant; median device ms per pass and quality."""
-    times = {k: [] for k in variants}
-    passes = {k: {} for k in variants}
-    last = {}
-    for k, (method, knobs) in variants.items():  # warm-up (builds, tables)
-        last[k] = run(buf, method, **knobs)
-    for _ in range(repeats):
-        for k, (method, knobs) in variants.items():
-            res = run(buf, method, **knobs)
-            times[k].append(res.device_ms)
-            for p, v in res.pass_ms.items():
-                passes[k].setdefault(p, []).append(v)
-            last[k] = res
+    """Interleaved warm runs of every variant (:func:`clrecon.bench.timing.paired_rounds`);
+    median device ms per pass and quality."""
+    calls = {k: functools.partial(run, buf, method, **knobs)
+             for k, (method, knobs) in variants.items()}
+    for call in calls.values():  # warm-up (builds, tables)
+        call()
     rows = {}
-    for k in variants:
-        q = evaluate(last[k].image, ref) if ref is not None else {}
-        rows[k] = {"ms": statistics.median(times[k]),
-                   "passes": {p: statistics.median(v) for p, v in passes[k].items()},
-                   "method": last[k].method, **q}
+    for k, results in zip(calls, paired_rounds(list(calls.values()), repeats)):
+        passes: dict[str, list[float]] = {}
+        for res in results:
+            for p, v in res.pass_ms.items():
+                passes.setdefault(p, []).append(v)
+        last = results[-1]
+        q = evaluate(last.image, ref) if ref is not None else {}
+        rows[k] = {"ms": statistics.median(r.device_ms for r in results),
+                   "passes": {p: statistics.median(v) for p, v in passes.items()},
+                   "method": last.method, **q}
     return rows
 
 

@@ -45,29 +45,47 @@ share, median PSNR; the ablation; the bias sources without a knob) and per scene
 """
 from __future__ import annotations
 
-import hashlib
 import io
-import itertools
 import json
-import math
 import statistics
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from clrecon.api import clear_sessions, run
+from clrecon.bench.convergence_report import save_plot, write_report
+from clrecon.bench.convergence_settings import (
+    ABLATIONS,
+    DEFAULT_AXES,
+    UNSWITCHED,
+    Probe,
+    Setting,
+    ablation_settings,
+    blur_scenes,
+    study_settings,
+)
+from clrecon.bench.convergence_stats import (
+    FLAT_GAIN,
+    bias_variance,
+    reference_noise,
+    sample_seed,
+    summarize,
+)
 from clrecon.bench.timing import duration_text
-from clrecon.bench.trade import TRADES
 from clrecon.core.device import Device, DeviceSpec, get_device
 from clrecon.core.errors import ClreconError
 from clrecon.core.fsutil import write_atomic
-from clrecon.core.pipeline import METHODS, _load_methods, clear_sessions, make_pipeline, run
 from clrecon.io import load_image, save_image
 from clrecon.metrics import psnr
-from clrecon.scenes import SCENES, get_scene, render_reference, render_samples
+from clrecon.scenes import get_scene, render_reference, render_samples
+
+__all__ = ["ABLATIONS", "ABLATION_SPP", "DEFAULT_AXES", "DEFAULT_SEEDS", "DEFAULT_SIZE",
+           "DEFAULT_SPPS", "FLAT_GAIN", "REFERENCE_SEEDS", "UNSWITCHED", "Probe", "Setting",
+           "ablation_settings", "bias_variance", "blur_scenes", "converge", "reference_noise",
+           "sample_seed", "study_settings", "summarize"]
 
 DEFAULT_SPPS = (4, 8, 16, 32, 64, 128)
 DEFAULT_SIZE = (256, 256)
@@ -77,277 +95,7 @@ ABLATION_SPP = 64
 #: seeds of the reference (what the study measures against) and of its noise estimate
 REFERENCE_SEEDS = (1, 2)
 
-#: knobs every method's default runs at each value of, where the method takes the knob
-#: (found by trying on a small frame): ``(name, values, paper)``, ``paper`` the value that is
-#: the method alone, which the ablation runs with (its bias sources are the method's own)
-DEFAULT_AXES: tuple[tuple[str, tuple, Any], ...] = (("safeguard", (True, False), False),)
-
-#: per method, the knobs that switch off or shrink one of its bias sources: (label, knobs,
-#: the bias source). Measured as the change of bias² at :data:`ABLATION_SPP` against the
-#: method's default, both run as the method alone
-ABLATIONS: dict[str, tuple[tuple[str, dict[str, Any], str], ...]] = {
-    "sweep": (
-        ("4 scales", {"scales": 4}, "box-scale weights: 2 scales (1x1, 5x5 px) vs 4 (3x3, 7x7)"),
-        ("exponent 1.3", {"exponent": 1.3}, "weight falloff: the paper's sharper variant"),
-        ("diameter x0.5", {"diameter_scale": 0.5}, "denoising diameter: narrower than the blur"),
-        ("diameter x2", {"diameter_scale": 2.0}, "denoising diameter: wider than the blur"),
-    ),
-    "layered": (
-        ("sigma_x 0.29", {"sigma_x": 0.29}, "spatial filter matched to the box pixel "
-                                           "(variance 1/12) instead of 0.33"),
-        ("sigma_x 0.15", {"sigma_x": 0.15}, "narrower spatial filter"),
-        ("no merging", {"merge_threshold": -1.0}, "layer merging (10%)"),
-        ("full stats", {"stats_stride": 1}, "sparse tile statistics (every 3 spp-th sample)"),
-        ("tile 16", {"tile": 16}, "tile size: one filter per partition and tile"),
-        ("filter mip", {"filter": "mip"}, "filter: MIP taps instead of the sheared Gaussian"),
-        ("filter rotated", {"filter": "rotated"}, "filter: rotated separable Gaussian"),
-    ),
-    "splat": (
-        ("2 layers", {"layers": 2}, "depth layers of the composite: fewer"),
-        ("8 layers", {"layers": 8}, "depth layers of the composite: more"),
-        ("mip radius 16", {"mip_radius": 16.0}, "mip levels: PSFs resolved to 16 level "
-                                                "pixels of radius instead of 8"),
-        ("paper plan", {"mip_radius": 0}, "the mip levels and bins instead of the paper's "
-                                          "full-resolution spreadlets"),
-        ("dense", {"dense": True}, "(the paper's plan) the dense PSF at full resolution"),
-    ),
-}
-
-#: per method, bias sources that no knob switches off
-UNSWITCHED: dict[str, tuple[str, ...]] = {
-    "sweep": ("the scale weights are boxes (5x5 or 7x7 windows), not the blur's disc or "
-              "segment: the denoising diameter only chooses between them",),
-    "layered": ("the filter is a Gaussian matched in variance to the disc and the motion "
-                "segment, not their shape (a disc has a sharp rim)",
-                "one CoC and one motion per partition: samples of different blur within "
-                "it are filtered alike (the reprojection residual is only matched in "
-                "expectation)",
-                "partition and tile boundaries: a surface's blur changes where the "
-                "partitioning of the depth axis or the tile changes",
-                "the gather reach (96 px) truncates wider blurs"),
-    "splat": ("the composite at depth edges: coverage-normalised layers, the farthest "
-              "well-covered layer fills, so occluded surfaces behind an edge are lost or "
-              "doubled",
-              "the mip plan: the samples of one layer and level pixel share one PSF (their "
-              "mean radius and motion), and a PSF is resolved to its level's pixels",
-              "holes: pixels no sample's PSF covers in a layer"),
-}
-
 Status = Callable[[str], None]
-
-
-# -- the measure ----------------------------------------------------------------------------
-
-def sample_seed(index: int, spp: int) -> int:
-    """The sample seed of seed index ``index`` at ``spp``: ``1000 (index + 1) + spp``,
-    independent across spp and seeds and never one of :data:`REFERENCE_SEEDS` (spp < 1000)."""
-    return 1000 * (int(index) + 1) + int(spp)
-
-
-def bias_variance(images, ref) -> dict[str, Any]:
-    """MSE of ``n >= 2`` images of one estimator against ``ref``, split into bias² and
-    variance (linear values; mean over pixels and channels).
-
-    Parameters
-    ----------
-    images : array_like, shape (n, H, W, 3)
-        Independent estimates (different sample seeds).
-    ref : array_like, shape (H, W, 3)
-
-    Returns
-    -------
-    dict
-        ``mse`` (mean over images of their MSE), ``bias2`` (``mean((m - ref)^2) - variance
-        / n``, ``m`` the mean image: unbiased, may be slightly negative), ``variance`` (mean
-        of the per-pixel sample variance, ``ddof=1``), ``mse_seed`` (each image's MSE),
-        ``bias_share`` (``bias2 / mse``, clipped to [0, 1]), ``bias2_se`` (the standard
-        error of ``bias2`` were the pixels independent: the spread of the per-pixel terms
-        over the root of their count, which also counts the bias's own spread across
-        pixels, so it errs large); ``mse == bias2 + variance``.
-    """
-    x = np.asarray(images, np.float64)
-    r = np.asarray(ref, np.float64)
-    if x.ndim != 4 or x.shape[1:] != r.shape or r.ndim != 3:
-        raise ValueError(f"images: expected (n, H, W, 3) with ref (H, W, 3), got {x.shape} "
-                         f"and {r.shape}")
-    n = x.shape[0]
-    if n < 2:
-        raise ValueError(f"images: need at least 2 (seeds) to split bias from variance, got {n}")
-    mse_seed = ((x - r) ** 2).mean(axis=(1, 2, 3))
-    var_px = x.var(axis=0, ddof=1)
-    d = (((x.mean(axis=0) - r) ** 2) - var_px / n).mean(axis=2)  # per pixel: mean is bias2
-    variance = float(var_px.mean())
-    bias2 = float(d.mean())
-    mse = float(mse_seed.mean())
-    return {"mse": mse, "bias2": bias2, "variance": variance,
-            "bias2_se": float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.inf,
-            "mse_seed": [float(v) for v in mse_seed],
-            "bias_share": float(min(max(bias2 / mse, 0.0), 1.0)) if mse > 0 else 0.0}
-
-
-def reference_noise(a, b) -> float:
-    """Variance of one reference from two of independent seeds: ``mean((a - b)^2) / 2``."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    if a.shape != b.shape:
-        raise ValueError(f"references differ in shape: {a.shape} and {b.shape}")
-    return float(((a - b) ** 2).mean() / 2)
-
-
-# -- settings -------------------------------------------------------------------------------
-
-@dataclass
-class Setting:
-    """One reconstruction the study runs: ``kind`` is ``box``, ``default`` (a method's
-    default, at one value of each axis it takes), ``trade`` (a :data:`TRADES` setting) or
-    ``ablation``; ``key`` names its cache folder (method and knobs less the defaults: two
-    spellings of one reconstruction share it)."""
-
-    label: str
-    method: str
-    knobs: dict[str, Any]
-    kind: str
-    key: str = ""
-    source: str = ""  # the bias source an ablation switches
-    base: str = ""  # an ablation: the label of the default it is measured against
-    canonical: dict[str, Any] = field(default_factory=dict)
-
-
-class Probe:
-    """What a method takes and defaults to, found on two small blurred frames (fence 48x48
-    at 4 and 8 spp): whether it takes a knob (:func:`make_pipeline` raises ``TypeError``
-    otherwise) and which values of knobs are its default (equal to the signature's default,
-    or to what ``describe()`` of the default pipeline reports, on both frames)."""
-
-    def __init__(self, device: DeviceSpec | Device = None):
-        self.dev = get_device(device)
-        scene = get_scene("fence")
-        self.infos = [render_samples(scene, 48, 48, spp, seed=7, device=self.dev).inspect()
-                      for spp in (4, 8)]
-        self._desc: dict[str, list[dict]] = {}
-
-    def takes(self, method: str, knob: str, value: Any) -> bool:
-        try:
-            make_pipeline(method, self.dev.context, self.infos[0], **{knob: value})
-        except TypeError as exc:
-            if knob in str(exc):
-                return False
-            raise
-        return True
-
-    def is_default(self, method: str, knob: str, value: Any) -> bool:
-        import inspect
-
-        param = inspect.signature(METHODS[method].__init__).parameters.get(knob)
-        if param is not None and param.default is not inspect.Parameter.empty \
-                and param.default is not None and _same(param.default, value):
-            return True
-        if method not in self._desc:
-            self._desc[method] = [make_pipeline(method, self.dev.context, info).describe()
-                                  for info in self.infos]
-        return all(knob in d and _same(d[knob], value) for d in self._desc[method])
-
-
-def _same(a, b) -> bool:
-    return type(a) is type(b) and a == b or (
-        isinstance(a, (int, float)) and isinstance(b, (int, float))
-        and not isinstance(a, bool) and not isinstance(b, bool) and float(a) == float(b))
-
-
-def _key(method: str, canonical: dict) -> str:
-    text = json.dumps([method, canonical], sort_keys=True, default=str)
-    return f"{method}-{hashlib.sha1(text.encode()).hexdigest()[:10]}"
-
-
-def _default_label(method: str, axes: dict) -> str:
-    """``sweep``; with axes ``sweep +safeguard``, ``sweep -safeguard`` (bools), ``name=value``."""
-    parts = [(f"+{k}" if v else f"-{k}") if isinstance(v, bool) else f"{k}={v}"
-             for k, v in axes.items()]
-    return " ".join([method, *parts])
-
-
-def _check_methods(methods: Sequence[str] | None) -> list[str]:
-    _load_methods()
-    if methods is None:
-        return [m for m in TRADES if m in METHODS]
-    methods = list(methods)
-    for m in methods:
-        if m not in METHODS:
-            raise ValueError(f"methods: unknown {m!r}; available: {sorted(METHODS)}")
-    return ["box", *[m for m in dict.fromkeys(methods) if m != "box"]]
-
-
-def _setting(label, method, knobs, kind, probe, **extra) -> Setting:
-    canonical = {k: v for k, v in sorted(knobs.items()) if not probe.is_default(method, k, v)}
-    return Setting(label, method, dict(knobs), kind, _key(method, canonical),
-                   canonical=canonical, **extra)
-
-
-def _axes(method: str, probe) -> list[tuple[str, tuple, Any]]:
-    """The :data:`DEFAULT_AXES` ``method`` takes (box: none, it is what they compare with)."""
-    if method == "box":
-        return []
-    return [ax for ax in DEFAULT_AXES if probe.takes(method, ax[0], ax[2])]
-
-
-def study_settings(methods: Sequence[str] | None = None,
-                   settings: Sequence[str] | None = None, probe=None) -> list[Setting]:
-    """Box, each method's default (at every value of each :data:`DEFAULT_AXES` knob it
-    takes) and its :data:`TRADES` settings that are not one of those spelled out.
-
-    ``methods`` restricts the methods (box always runs); ``settings`` the settings by label,
-    where a method's name selects every default of it. ``probe``: a :class:`Probe` (made on
-    the default device when ``None``).
-    """
-    methods = _check_methods(methods)
-    probe = probe or Probe()
-    out: list[Setting] = []
-    for m in methods:
-        axes = _axes(m, probe)
-        defaults = [dict(zip([a[0] for a in axes], vals))
-                    for vals in itertools.product(*[a[1] for a in axes])]
-        for knobs in defaults:
-            out.append(_setting(_default_label(m, knobs), m, knobs,
-                                "box" if m == "box" else "default", probe))
-        for label, knobs in TRADES.get(m, ()):
-            s = _setting(label, m, knobs, "trade", probe)
-            if all(s.key != o.key for o in out):
-                out.append(s)
-    if settings is not None:
-        wanted = list(dict.fromkeys(settings))
-        labels = {s.label for s in out}
-        unknown = [w for w in wanted if w not in labels and w not in methods]
-        if unknown:
-            raise ValueError(f"settings: unknown {unknown}; available: "
-                             f"{[s.label for s in out]} (or a method's name: its defaults)")
-        out = [s for s in out if s.kind == "box" or s.label in wanted
-               or (s.kind == "default" and s.method in wanted)]
-    return out
-
-
-def ablation_settings(methods: Sequence[str] | None = None, probe=None) -> list[Setting]:
-    """For each method of :data:`ABLATIONS` in ``methods``: its default as the method alone
-    (``base``) and each ablation knob on top of it."""
-    methods = [m for m in _check_methods(methods) if m in ABLATIONS]
-    probe = probe or Probe()
-    out = []
-    for m in methods:
-        paper = {a[0]: a[2] for a in _axes(m, probe)}
-        base = _setting(_default_label(m, paper), m, paper, "default", probe)
-        out.append(base)
-        for label, knobs, source in ABLATIONS[m]:
-            out.append(_setting(f"{m} {label}", m, {**paper, **knobs}, "ablation", probe,
-                                source=source, base=base.label))
-    return out
-
-
-def blur_scenes() -> list[str]:
-    """The built-in scenes with blur: objects, and a lens or motion."""
-    names = []
-    for name in SCENES:
-        s = get_scene(name)
-        if s.objects and (s.lens_radius > 0 or s.has_motion):
-            names.append(name)
-    return names
 
 
 # -- the study --------------------------------------------------------------------------------
@@ -500,14 +248,7 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
         "settings": [_setting_json(s) for s in _unique_settings(main + abl)],
         "references": {}, "rows": [], "ablation": []}
     for name, scene in scene_objs.items():
-        refs = []
-        for seed in REFERENCE_SEEDS:
-            t = time.perf_counter()
-            ref, cached = _reference(scene, w, h, ref_spps[name], seed, out / "references")
-            refs.append(ref)
-            if status and not cached:
-                status(f"reference of {name} ({ref_spps[name]} spp, seed {seed}) rendered in "
-                       f"{duration_text(time.perf_counter() - t)}")
+        refs = _references(scene, w, h, ref_spps[name], out / "references", status)
         report["references"][name] = {"ref_spp": ref_spps[name],
                                       "noise_var": reference_noise(*refs)}
         ref = refs[0]
@@ -521,20 +262,41 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
             for spp in spps:
                 report["rows"].append({"scene": name, "setting": s.label, "method": s.method,
                                        "kind": s.kind, "spp": spp, **results[(s.key, spp)]})
-        for s in (a for a in abl if a.kind == "ablation"):
-            base = next(b for b in abl if b.label == s.base)
-            mine, theirs = results[(s.key, ablation_spp)], results[(base.key, ablation_spp)]
-            report["ablation"].append({
-                "scene": name, "method": s.method, "setting": s.label, "base": base.label,
-                "source": s.source, "spp": ablation_spp, "knobs": s.knobs,
-                **{k: mine.get(k) for k in ("bias2", "bias2_se", "variance", "mse", "error")},
-                **{f"base_{k}": theirs.get(k) for k in ("bias2", "bias2_se", "variance",
-                                                        "mse")}})
-        _write(out, report)
-        _save_plot(out / f"{name}_convergence.png", name,
+        report["ablation"] += _ablation_rows(name, abl, results, ablation_spp)
+        write_report(out, report)
+        save_plot(out / f"{name}_convergence.png", name,
                    [r for r in report["rows"] if r["scene"] == name],
                    report["references"][name]["noise_var"])
     return report
+
+
+def _references(scene, w: int, h: int, spp: int, cache: Path,
+                status: Status | None) -> list[np.ndarray]:
+    """The scene's references of :data:`REFERENCE_SEEDS`, cached or rendered."""
+    refs = []
+    for seed in REFERENCE_SEEDS:
+        t = time.perf_counter()
+        ref, cached = _reference(scene, w, h, spp, seed, cache)
+        refs.append(ref)
+        if status and not cached:
+            status(f"reference of {scene.name} ({spp} spp, seed {seed}) rendered in "
+                   f"{duration_text(time.perf_counter() - t)}")
+    return refs
+
+
+def _ablation_rows(name: str, abl: list[Setting], results: dict[tuple[str, int], dict],
+                   spp: int) -> list[dict]:
+    """Each ablation setting's numbers at ``spp`` beside its base's (``base_*``)."""
+    rows = []
+    for s in (a for a in abl if a.kind == "ablation"):
+        base = next(b for b in abl if b.label == s.base)
+        mine, theirs = results[(s.key, spp)], results[(base.key, spp)]
+        rows.append({
+            "scene": name, "method": s.method, "setting": s.label, "base": base.label,
+            "source": s.source, "spp": spp, "knobs": s.knobs,
+            **{k: mine.get(k) for k in ("bias2", "bias2_se", "variance", "mse", "error")},
+            **{f"base_{k}": theirs.get(k) for k in ("bias2", "bias2_se", "variance", "mse")}})
+    return rows
 
 
 def _unique_settings(settings: list[Setting]) -> list[Setting]:
@@ -612,233 +374,3 @@ def _measure_spp(dev, scene, w, h, spp, seeds, group, ref, ref_spp, cache: Path,
                 p.unlink()
         done[(s.key, spp)] = res
     return done
-
-
-# -- outputs ----------------------------------------------------------------------------------
-
-def _write(out: Path, report: dict) -> None:
-    """``convergence.json`` and ``.md`` of the scenes done so far (rewritten after each)."""
-    report["markdown"] = _markdown(report)
-    write_atomic(out / "convergence.json", json.dumps(
-        {k: v for k, v in report.items() if k != "markdown"}, indent=1, default=str).encode(),
-        0o644)
-    write_atomic(out / "convergence.md", report["markdown"].encode(), 0o644)
-
-
-def _sci(v) -> str:
-    if v is None or not math.isfinite(v):
-        return "-"
-    return f"{v:.2e}".replace("e-0", "e-").replace("e+0", "e")
-
-
-def _by_setting(rows: list[dict]) -> dict[str, dict[int, dict]]:
-    table: dict[str, dict[int, dict]] = {}
-    for r in rows:
-        table.setdefault(r["setting"], {})[r["spp"]] = r
-    return table
-
-
-#: a setting is flat from the spp where doubling the samples gains less than this share
-FLAT_GAIN = 0.2
-
-
-def summarize(rows: list[dict]) -> list[dict]:
-    """Per setting of one scene: the MSE ratio per doubling of spp over the last two spp
-    (0.5: falling like 1/spp; 1: not improving), ``flat_from`` (the smallest spp from which
-    every further doubling lowers the MSE by less than :data:`FLAT_GAIN`; ``None``: not in
-    range), the bias share at the largest spp, and the smallest spp from which box's MSE is
-    below the setting's (``None``: never in range)."""
-    table = _by_setting(rows)
-    box = table.get("box", {})
-    out = []
-    for label, cells in table.items():
-        spps = sorted(k for k, r in cells.items() if "mse" in r)
-        item = {"setting": label, "per_doubling": None, "flat_from": None,
-                "bias_share_top": None, "box_better_from": None}
-        ratios = []
-        for lo, hi in zip(spps, spps[1:]):
-            a, b = cells[lo]["mse"], cells[hi]["mse"]
-            ratios.append((b / a) ** (1.0 / math.log2(hi / lo)) if a > 0 else math.nan)
-        if ratios:
-            item["per_doubling"] = ratios[-1]
-            for i in range(len(ratios)):
-                if all(r > 1 - FLAT_GAIN for r in ratios[i:]):
-                    item["flat_from"] = spps[i]
-                    break
-        if spps:
-            item["bias_share_top"] = cells[spps[-1]]["bias_share"]
-        if label != "box":
-            for spp in spps:
-                if spp in box and "mse" in box[spp] and box[spp]["mse"] < cells[spp]["mse"]:
-                    item["box_better_from"] = spp
-                    break
-        out.append(item)
-    return out
-
-
-def _markdown(rep: dict) -> str:
-    cfg = rep["config"]
-    w, h = cfg["size"]
-    lines = [
-        f"Device: {cfg['device']}; {w}x{h}; {cfg['seeds']} sample seeds per cell "
-        f"({cfg['sample_seed']}); references on the trusted device (seeds 1 and 2).", "",
-        "MSE: linear radiance, mean over pixels and RGB, against the seed-1 reference, mean "
-        "over seeds; in brackets the bias share, bias² / MSE, with bias² = mean((mean image "
-        "- ref)²) - variance / seeds and variance the per-pixel spread across seeds (MSE = "
-        "bias² + variance). bias² includes the reference's own noise (the floor no setting "
-        "gets below; box measures it). PSNR: clrecon.metrics.psnr (tone mapped, clipped), "
-        "median over seeds. Per doubling: MSE ratio per doubling of spp over the last two "
-        f"spp (0.50: like 1/spp; 1.00: not improving); flat from: the spp from which every "
-        f"doubling gains less than {100 * FLAT_GAIN:.0f}% MSE.", ""]
-    lines += _overview(rep)
-    for scene in dict.fromkeys(r["scene"] for r in rep["rows"]):
-        rows = [r for r in rep["rows"] if r["scene"] == scene]
-        spps = sorted({r["spp"] for r in rows})
-        ref = rep["references"][scene]
-        table = _by_setting(rows)
-        box = table.get("box", {}).get(spps[-1], {})
-        box_line = "" if "bias2" not in box else (
-            f" Box's bias² at {spps[-1]} spp: {_sci(box['bias2'])} ± {_sci(box['bias2_se'])} "
-            "(box is unbiased, so this is the reference's noise seen from the other side).")
-        lines += [f"### {scene}", "",
-                  f"Reference {ref['ref_spp']} spp; its noise variance (half the mean squared "
-                  f"difference of seeds 1 and 2): {_sci(ref['noise_var'])}.{box_line}", "",
-                  "| setting | " + " | ".join(f"{s} spp" for s in spps)
-                  + " | per doubling | flat from | box better from |",
-                  "|---|" + "---|" * (len(spps) + 3)]
-        summ = {s["setting"]: s for s in summarize(rows)}
-        for label, cells in table.items():
-            vals = []
-            for spp in spps:
-                r = cells.get(spp, {})
-                vals.append("error" if "error" in r else
-                            f"{_sci(r['mse'])} ({100 * r['bias_share']:.0f}%)" if r else "-")
-            sm = summ[label]
-            per = "-" if sm["per_doubling"] is None else f"{sm['per_doubling']:.2f}"
-            better = "-" if label == "box" else (
-                f"{sm['box_better_from']} spp" if sm["box_better_from"] else "never")
-            flat = f"{sm['flat_from']} spp" if sm["flat_from"] else "-"
-            lines.append(f"| {label} | " + " | ".join(vals) + f" | {per} | {flat} | {better} |")
-        lines += ["", "Median PSNR dB:", "",
-                  "| setting | " + " | ".join(f"{s} spp" for s in spps) + " |",
-                  "|---|" + "---|" * len(spps)]
-        for label, cells in table.items():
-            lines.append(f"| {label} | " + " | ".join(
-                f"{cells[s]['psnr_median']:.2f}" if "psnr_median" in cells.get(s, {}) else "-"
-                for s in spps) + " |")
-        errs = [(label, s, c["error"]) for label, cs in table.items() for s, c in cs.items()
-                if "error" in c]
-        lines += [""] + [f"- {label} at {s} spp: {e}" for label, s, e in errs]
-        lines += [""] * bool(errs) + [f"![{scene}]({scene}_convergence.png)", ""]
-    if rep["ablation"]:
-        scenes = list(dict.fromkeys(a["scene"] for a in rep["ablation"]))
-        lines += [f"### Ablation at {cfg['ablation_spp']} spp", "",
-                  "bias² of each method alone (the base row) and, per knob that switches a "
-                  "bias source, its bias² with the change against the base in brackets "
-                  "(variance change after the slash); `*`: the change exceeds twice the "
-                  "combined standard error of the two bias² estimates (pixels taken as "
-                  "independent).", ""]
-        for method in dict.fromkeys(a["method"] for a in rep["ablation"]):
-            rows = [a for a in rep["ablation"] if a["method"] == method]
-            lines += [f"#### {method}", "", "| setting | bias source | "
-                      + " | ".join(scenes) + " |", "|---|---|" + "---|" * len(scenes)]
-            base = {a["scene"]: a for a in rows}
-            lines.append(f"| {rows[0]['base']} | (base) | " + " | ".join(
-                _sci(base[s]["base_bias2"]) if s in base else "-" for s in scenes) + " |")
-            for label in dict.fromkeys(a["setting"] for a in rows):
-                cells = {a["scene"]: a for a in rows if a["setting"] == label}
-                src = next(iter(cells.values()))["source"]
-                lines.append(f"| {label} | {src} | " + " | ".join(
-                    _ablation_cell(cells.get(s)) for s in scenes) + " |")
-            lines.append("")
-    lines += ["### Bias sources without a knob", ""]
-    for method, items in UNSWITCHED.items():
-        lines += [f"- {method}: " + "; ".join(items)]
-    lines.append("")
-    return "\n".join(lines)
-
-
-def _overview(rep: dict) -> list[str]:
-    """One table over the scenes: per setting, where it is flat and its bias share there."""
-    scenes = list(dict.fromkeys(r["scene"] for r in rep["rows"]))
-    if not scenes:
-        return []
-    per = {s: {x["setting"]: x for x in summarize([r for r in rep["rows"]
-                                                    if r["scene"] == s])} for s in scenes}
-    top = max(r["spp"] for r in rep["rows"])
-    lines = ["### Overview", "", f"Per scene: the spp from which the MSE is flat, the bias "
-             f"share at {top} spp, and MSE at {top} spp relative to box's.", "",
-             "| setting | " + " | ".join(scenes) + " |", "|---|" + "---|" * len(scenes)]
-    for label in dict.fromkeys(r["setting"] for r in rep["rows"]):
-        cells = []
-        for s in scenes:
-            sm = per[s].get(label)
-            mine = next((r for r in rep["rows"] if r["scene"] == s and r["setting"] == label
-                         and r["spp"] == top), {})
-            box = next((r for r in rep["rows"] if r["scene"] == s and r["setting"] == "box"
-                        and r["spp"] == top), {})
-            if sm is None or "mse" not in mine:
-                cells.append("-")
-                continue
-            flat = f"{sm['flat_from']}" if sm["flat_from"] else "-"
-            rel = f", x{mine['mse'] / box['mse']:.2f}" if box.get("mse") else ""
-            cells.append(f"{flat} / {100 * mine['bias_share']:.0f}%{rel}")
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return lines + [""]
-
-
-def _ablation_cell(a: dict | None) -> str:
-    if a is None:
-        return "-"
-    if a.get("error") or a.get("bias2") is None:
-        return "error"
-    b, b0, v, v0 = a["bias2"], a["base_bias2"], a["variance"], a["base_variance"]
-    if b0 is None:
-        return f"{_sci(b)} (base: error)"
-    db = "" if b0 == 0 else f" ({100 * (b - b0) / abs(b0):+.0f}%"
-    dv = "" if not db or not v0 else f" / {100 * (v - v0) / v0:+.0f}%"
-    sig = "*" if abs(b - b0) > 2 * math.hypot(a["bias2_se"], a["base_bias2_se"]) else ""
-    return f"{_sci(b)}{sig}{db}{dv}{')' if db else ''}"
-
-
-def _save_plot(path: Path, scene: str, rows: list[dict], noise_var: float) -> None:
-    from clrecon.bench.trade import _plt
-
-    plt = _plt()
-    table = _by_setting(rows)
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 5.2), dpi=100, sharey=True)
-    cmap = plt.get_cmap("tab10" if len(table) <= 10 else "tab20")
-    k = 0
-    for label, cells in table.items():
-        spps = sorted(s for s, r in cells.items() if "mse" in r)
-        if not spps:
-            continue
-        xs = np.array(spps, float)
-        got = {key: np.array([cells[s][key] for s in spps], float)
-               for key in ("mse", "bias2", "variance")}
-        if label == "box":
-            colour, style, lw = "black", "--", 2.0
-        else:
-            colour, style, lw = cmap(k % cmap.N), "-", 1.6
-            k += 1
-        ax.plot(xs, got["mse"], style, color=colour, lw=lw, marker="o", ms=3, label=label)
-        bias = got["bias2"]
-        ax2.plot(xs, np.where(bias > 0, bias, np.nan), style, color=colour, lw=0.9)
-        ax2.plot(xs, got["variance"], ":", color=colour, lw=0.9)
-    for a in (ax, ax2):
-        if noise_var > 0:
-            a.axhline(noise_var, color="grey", lw=0.8, ls="-.")
-        a.set_xscale("log", base=2)
-        a.set_yscale("log")
-        a.set_xlabel("samples per pixel")
-        a.grid(True, which="both", alpha=0.3)
-        xs = sorted({r["spp"] for r in rows})
-        a.set_xticks(xs, [str(x) for x in xs])
-    ax.set_ylabel("MSE (linear radiance, mean over RGB)")
-    ax.set_title(f"{scene}: MSE against the reference (box dashed; dash-dot: the "
-                 "reference's noise)", fontsize=9)
-    ax2.set_title("bias² (solid; box dashed) and variance (dotted), same colours", fontsize=9)
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from clrecon.api import run
 from clrecon.core.device import get_device, trusted_device
-from clrecon.core.pipeline import run
 from clrecon.io import load_image, save_image
 from clrecon.scenes import get_scene, render_reference, render_samples
 

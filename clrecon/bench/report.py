@@ -11,9 +11,9 @@ import json
 import time
 from pathlib import Path
 
+from clrecon.api import run
 from clrecon.bench.timing import median_wall_s
 from clrecon.core.device import get_device
-from clrecon.core.pipeline import run
 from clrecon.io import save_image
 from clrecon.metrics import evaluate, psnr
 from clrecon.scenes import SCENES, get_scene, render_reference, render_samples

@@ -21,14 +21,11 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
+from clrecon.api import METHODS, method_knobs, run
+from clrecon.bench.options import parse_knobs
+from clrecon.bench.options import parse_value as parse_value  # re-exported: the CLI's import
 from clrecon.bench.timing import time_pipeline
 from clrecon.core.device import Device, DeviceSpec, get_device
-from clrecon.core.pipeline import (
-    METHODS,
-    _load_methods,
-    method_knobs,
-    run,
-)
 from clrecon.io import load_image, load_samples, save_image
 from clrecon.metrics import evaluate
 from clrecon.scenes import SCENES, get_scene, render_reference, render_samples
@@ -52,16 +49,6 @@ GAP = 2
 
 
 # -- variants ------------------------------------------------------------------------------
-
-def parse_value(text: str) -> int | float | bool | str:
-    """A knob value from text: int, then float, then true/false (any case), else the text."""
-    for cast in (int, float):
-        try:
-            return cast(text)
-        except ValueError:
-            pass
-    return {"true": True, "false": False}.get(text.lower(), text)
-
 
 def parse_variant(text: str) -> Variant:
     """Parse ``[LABEL=]METHOD[:knob=value,knob=value...]`` into ``(label, method, knobs)``.
@@ -94,23 +81,13 @@ def parse_variant(text: str) -> Variant:
     method = head.strip()
     if not method:
         raise ValueError(f"variant {text!r}: no method (expected [LABEL=]METHOD[:k=v,...])")
-    knobs: dict[str, Any] = {}
-    for item in rest.split(",") if sep else ():
-        if not item.strip():
-            continue
-        name, eq, value = item.partition("=")
-        name = name.strip()
-        if not eq or not name:
-            raise ValueError(f"variant {text!r}: knob {item.strip()!r} is not NAME=VALUE")
-        if name in knobs:
-            raise ValueError(f"variant {text!r}: knob {name!r} given twice")
-        knobs[name] = parse_value(value.strip())
+    items = [item.strip() for item in rest.split(",") if item.strip()] if sep else []
+    knobs = parse_knobs(items, f"variant {text!r}: knob")
     return (label or text, method, knobs)
 
 
 def _check_variants(variants: Sequence[Variant]) -> list[Variant]:
     """Fail before any rendering on unknown methods or knobs and on repeated labels."""
-    _load_methods()
     out, seen = [], set()
     for v in variants:
         try:

@@ -23,7 +23,6 @@ setting of each method, at the middle spp, centred where the box filter errs mos
 """
 from __future__ import annotations
 
-import json
 import statistics
 import time
 from collections.abc import Callable, Sequence
@@ -32,11 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from clrecon.bench.table import CROP, Progress, _check_variants, frame_sources, hardest_region
-from clrecon.bench.timing import OidnRun, PipelineRun, duration_text
+from clrecon.api import METHODS
+from clrecon.bench.table import Progress, _check_variants, frame_sources
+from clrecon.bench.timing import OidnRun, PipelineRun, duration_text, paired_rounds
+from clrecon.bench.trade_report import markdown, save_crops, verdicts, write_outputs
 from clrecon.core.device import Device, DeviceSpec, get_device
-from clrecon.core.pipeline import METHODS, _load_methods
-from clrecon.io import load_image, load_samples, save_image, tonemap_srgb
+from clrecon.io import load_image, load_samples, save_image
 from clrecon.metrics import evaluate
 from clrecon.scenes import get_scene, render_reference, render_samples
 
@@ -81,7 +81,6 @@ OIDN_QUALITIES = ("fast", "high")
 def trade_variants(methods: Sequence[str] | None = None) -> list[tuple[str, str, dict]]:
     """The (label, method, knobs) settings of :data:`TRADES` for ``methods`` (default: every
     registered method). ``box`` is always included: every ratio is taken against it."""
-    _load_methods()
     methods = [m for m in TRADES if m in METHODS] if methods is None else list(methods)
     for m in methods:
         if m not in METHODS:
@@ -175,14 +174,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     """
     scenes, inputs, stems = frame_sources(scenes, inputs)
     scene_objs = {n: get_scene(n) for n in scenes}
-    spps = [int(s) for s in spps]
-    if not spps or min(spps) < 1:
-        raise ValueError(f"spps: need positive integers, got {spps}")
-    if not (isinstance(repeats, int) and repeats >= 1):
-        raise ValueError(f"repeats: must be a positive integer, got {repeats!r}")
-    variants = trade_variants(methods)
-    if oidn:
-        import pyoidn  # noqa: F401  (fail before any measurement when it is missing)
+    spps, variants = _check_options(spps, repeats, methods, oidn)
     w, h = (int(v) for v in size)
     dev = get_device(device)
     out = Path(out_dir)
@@ -210,18 +202,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     rows, crops = [], {}
 
     def measure(name, spp, buf, ref):
-        got = _measure(dev, buf, variants, oidn, repeats)
-        group = []
-        for label, method, knobs, runner, ms, ratio in got:
-            image = runner.image()
-            row = {"scene": name, "spp": spp, "variant": label, "method": method,
-                   "knobs": knobs, "describe": runner.describe(), "ms": ms, "x_box": ratio,
-                   "pass_ms": {k: statistics.median(v) for k, v in runner.pass_ms.items()},
-                   **evaluate(image, ref)}
-            group.append((row, image))
-        for (row, _), front in zip(group, pareto_front([(r["ms"], r["psnr"])
-                                                        for r, _ in group])):
-            row["pareto"] = front
+        group = _group(dev, buf, variants, oidn, repeats, name, spp, ref)
         rows.extend(r for r, _ in group)
         return group
 
@@ -245,16 +226,13 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
             if status:
                 status(eta.line(f"{name} at {spp} spp measured", dt))
             step()
-        _save_crops(out / f"{name}_crops.png", name, *crops[name])
+        save_crops(out / f"{name}_crops.png", name, *crops[name])
     for (path, ref_path), name in zip(inputs, stems):
         t = time.perf_counter()
-        buf, ref = load_samples(path), load_image(ref_path)
-        if ref.shape != (buf.height, buf.width, 3):
-            raise ValueError(f"--reference {ref_path}: {ref.shape[1]}x{ref.shape[0]} image for "
-                             f"a {buf.width}x{buf.height} frame ({path})")
+        buf, ref = _user_frame(path, ref_path)
         step()
         group = measure(name, buf.spp, buf, ref)
-        _save_crops(out / f"{name}_crops.png", name, ref, group)
+        save_crops(out / f"{name}_crops.png", name, ref, group)
         dt = time.perf_counter() - t
         eta.frame(None, buf.width * buf.height * buf.spp, dt)
         if status:
@@ -262,14 +240,32 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         step()
     report = {"device": dev.info.label, "size": [w, h], "spps": spps, "repeats": repeats,
               "rows": rows}
-    report["verdicts"] = _verdicts(rows)
-    report["markdown"] = _markdown(report)
-    (out / "trade.json").write_text(json.dumps(
-        {k: v for k, v in report.items() if k != "markdown"}, indent=2, default=str))
-    (out / "trade.md").write_text(report["markdown"])
-    for name in [*scene_objs, *stems]:
-        _save_plot(out / f"{name}_pareto.png", name, [r for r in rows if r["scene"] == name])
+    report["verdicts"] = verdicts(rows)
+    report["markdown"] = markdown(report)
+    write_outputs(out, report, [*scene_objs, *stems])
     return report
+
+
+def _check_options(spps, repeats, methods, oidn: bool) -> tuple[list[int], list]:
+    """The spp list and the variants, checked before any measurement."""
+    spps = [int(s) for s in spps]
+    if not spps or min(spps) < 1:
+        raise ValueError(f"spps: need positive integers, got {spps}")
+    if not (isinstance(repeats, int) and repeats >= 1):
+        raise ValueError(f"repeats: must be a positive integer, got {repeats!r}")
+    variants = trade_variants(methods)
+    if oidn:
+        import pyoidn  # noqa: F401  (fail before any measurement when it is missing)
+    return spps, variants
+
+
+def _user_frame(path, ref_path):
+    """A frame of the user's and its reference, which must have the frame's size."""
+    buf, ref = load_samples(path), load_image(ref_path)
+    if ref.shape != (buf.height, buf.width, 3):
+        raise ValueError(f"--reference {ref_path}: {ref.shape[1]}x{ref.shape[0]} image for "
+                         f"a {buf.width}x{buf.height} frame ({path})")
+    return buf, ref
 
 
 class _Eta:
@@ -335,19 +331,31 @@ def _measure(dev, buf, variants, oidn: bool, repeats: int):
     for entry in entries:
         entry[3].run()  # warm-up: PoCL compiles work-group functions on the first launch
         entry[3].pass_ms.clear()
-    times: list[list[float]] = [[] for _ in entries]
+    times = paired_rounds([e[3].run for e in entries], repeats)
     box_i = next(i for i, e in enumerate(entries) if e[3] is box)
-    for r in range(repeats):
-        order = list(range(len(entries)))
-        order = order[r % len(order):] + order[:r % len(order)]
-        for i in order:
-            times[i].append(entries[i][3].run())
     box_times = times[box_i]
     res = []
     for (lab, m, k, runner), ts in zip(entries, times):
         ratio = statistics.median(t / max(b, 1e-6) for t, b in zip(ts, box_times))
         res.append((lab, m, k, runner, statistics.median(ts), ratio))
     return res
+
+
+def _group(dev, buf, variants, oidn: bool, repeats: int, name: str, spp: int,
+           ref: np.ndarray) -> list[tuple[dict, np.ndarray]]:
+    """One frame measured (:func:`_measure`): per setting its row (time, quality against
+    ``ref``, whether it is on the frame's Pareto front) and its image."""
+    group = []
+    for label, method, knobs, runner, ms, ratio in _measure(dev, buf, variants, oidn, repeats):
+        image = runner.image()
+        row = {"scene": name, "spp": spp, "variant": label, "method": method,
+               "knobs": knobs, "describe": runner.describe(), "ms": ms, "x_box": ratio,
+               "pass_ms": {k: statistics.median(v) for k, v in runner.pass_ms.items()},
+               **evaluate(image, ref)}
+        group.append((row, image))
+    for (row, _), front in zip(group, pareto_front([(r["ms"], r["psnr"]) for r, _ in group])):
+        row["pareto"] = front
+    return group
 
 
 def _plan_line(scenes, spps, inputs, settings: int, size, repeats: int,
@@ -369,115 +377,3 @@ def _plan_line(scenes, spps, inputs, settings: int, size, repeats: int,
     return (f"{what} x {settings} settings = {frames * settings} measurements at "
             f"{size[0]}x{size[1]}, each {rounds} after a warm-up{refs}; "
             f"the time left is estimated once a reference and a frame are done")
-
-
-def _verdicts(rows: list[dict]) -> list[dict]:
-    """Per scene and spp and OIDN mode: the clrecon settings faster and better than it."""
-    out = []
-    keys = list(dict.fromkeys((r["scene"], r["spp"]) for r in rows))
-    for scene, spp in keys:
-        group = [r for r in rows if (r["scene"], r["spp"]) == (scene, spp)]
-        ours = [r for r in group if r["method"] not in ("oidn", "box")]
-        for o in (r for r in group if r["method"] == "oidn"):
-            wins = [r["variant"] for r in ours if r["ms"] < o["ms"] and r["psnr"] > o["psnr"]]
-            best = max(ours, key=lambda r: r["psnr"], default=None)
-            out.append({"scene": scene, "spp": spp, "oidn": o["variant"], "oidn_ms": o["ms"],
-                        "oidn_psnr": o["psnr"], "wins": wins,
-                        "best": None if best is None else best["variant"],
-                        "best_psnr": None if best is None else best["psnr"],
-                        "best_ms": None if best is None else best["ms"]})
-    return out
-
-
-def _markdown(rep: dict) -> str:
-    w, h = rep["size"]
-    lines = [f"Device: {rep['device']}; {w}x{h}; time: median of {rep['repeats']} paired rounds "
-             "(device ms from profiling events; OIDN: box pass + denoiser wall time on the "
-             "host CPU); x box: median per-round ratio to the box filter; quality against the "
-             "converged reference; **bold**: on the (time, PSNR) Pareto front of its scene and "
-             "spp.", ""]
-    for scene in dict.fromkeys(r["scene"] for r in rep["rows"]):
-        lines += [f"### {scene}", "", "| spp | setting | ms | x box | PSNR dB | SSIM | FLIP | "
-                  "mode |", "|---|---|---|---|---|---|---|---|"]
-        for r in (r for r in rep["rows"] if r["scene"] == scene):
-            label = f"**{r['variant']}**" if r["pareto"] else r["variant"]
-            mode = r["describe"].get("mode", "")
-            lines.append(f"| {r['spp']} | {label} | {r['ms']:.1f} | {r['x_box']:.1f} | "
-                         f"{r['psnr']:.2f} | {r['ssim']:.4f} | {r['flip']:.4f} | {mode} |")
-        lines.append("")
-    if rep["verdicts"]:
-        lines += ["### Against Open Image Denoise", "",
-                  "| scene | spp | OIDN | OIDN ms / dB | clrecon settings faster and better | "
-                  "best clrecon ms / dB |", "|---|---|---|---|---|---|"]
-        for v in rep["verdicts"]:
-            wins = ", ".join(v["wins"]) if v["wins"] else "none"
-            best = "-" if v["best"] is None else \
-                f"{v['best']}: {v['best_ms']:.1f} / {v['best_psnr']:.2f}"
-            lines.append(f"| {v['scene']} | {v['spp']} | {v['oidn']} | "
-                         f"{v['oidn_ms']:.1f} / {v['oidn_psnr']:.2f} | {wins} | {best} |")
-        lines.append("")
-    return "\n".join(lines)
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save_plot(path: Path, scene: str, rows: list[dict]) -> None:
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(8, 5.5), dpi=110)
-    markers = {"box": "s", "oidn": "D", "sweep": "o", "layered": "^", "splat": "v"}
-    for k, spp in enumerate(dict.fromkeys(r["spp"] for r in rows)):
-        group = [r for r in rows if r["spp"] == spp]
-        colour = f"C{k}"
-        for r in group:
-            ax.scatter(r["ms"], r["psnr"], marker=markers.get(r["method"], "x"), color=colour,
-                       edgecolor="black" if r["pareto"] else "none", s=40, zorder=3)
-            ax.annotate(r["variant"], (r["ms"], r["psnr"]), fontsize=6, xytext=(3, 2),
-                        textcoords="offset points")
-        front = sorted((r["ms"], r["psnr"]) for r in group if r["pareto"])
-        if front:
-            xs, ys = zip(*front)
-            ax.step(xs, ys, where="post", color=colour, label=f"{spp} spp front", zorder=2)
-    ax.set_xscale("log")
-    ax.set_xlabel("time per frame, ms (log)")
-    ax.set_ylabel("PSNR dB vs converged reference")
-    ax.set_title(f"{scene}: speed vs accuracy (markers: s box, D OIDN, o sweep, ^ layered, "
-                 "v splat)", fontsize=9)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-
-
-def _save_crops(path: Path, scene: str, ref: np.ndarray, group: list) -> None:
-    """Reference, box, OIDN, and the best-PSNR setting of each method, one crop each."""
-    plt = _plt()
-    best: dict[str, tuple[dict, np.ndarray]] = {}
-    for row, img in group:
-        key = row["variant"] if row["method"] in ("box", "oidn") else row["method"]
-        if key not in best or row["psnr"] > best[key][0]["psnr"]:
-            best[key] = (row, img)
-    box_img = next(img for row, img in group if row["method"] == "box")
-    y, x = hardest_region(np.abs(box_img - ref))
-    hh, ww = ref.shape[:2]
-    ch, cw = min(CROP, hh), min(CROP, ww)
-    y0, x0 = int(np.clip(y - ch // 2, 0, hh - ch)), int(np.clip(x - cw // 2, 0, ww - cw))
-    panels = [("reference", ref)] + [
-        (f"{row['variant']}\n{row['psnr']:.2f} dB, {row['ms']:.0f} ms", img)
-        for row, img in best.values()]
-    fig, axes = plt.subplots(1, len(panels), figsize=(2.2 * len(panels), 2.6), dpi=110)
-    for ax, (title, img) in zip(np.atleast_1d(axes), panels):
-        ax.imshow(tonemap_srgb(img[y0:y0 + ch, x0:x0 + cw]), interpolation="nearest")
-        ax.set_title(title, fontsize=7)
-        ax.axis("off")
-    fig.suptitle(f"{scene}, {group[0][0]['spp']} spp, crop at x={x0}, y={y0}", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)

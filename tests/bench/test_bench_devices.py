@@ -188,8 +188,8 @@ def _bytes_of_plan(pipe, samples_bytes: dict, out_bytes: int) -> dict:
 
 
 def test_bandwidth_rows(result):
-    from clrecon.core.pipeline import make_pipeline
-    from clrecon.tune.specs import synthetic_frame
+    from clrecon.api import make_pipeline
+    from clrecon.tune.runners import synthetic_frame
 
     dev = get_device(0)
     label = dev.info.label
@@ -225,8 +225,8 @@ def test_safeguarded_method_is_looked_into():
     """A safeguarded method runs as two steps of sub-pipelines (the frame, both halves): the
     bench reports the method's own passes, each half-frame pass counting both halves, and a
     two-kernel pass (layered's filter_sheared) as one row beside its kernels."""
-    from clrecon.core.pipeline import make_pipeline
-    from clrecon.tune.specs import synthetic_frame
+    from clrecon.api import make_pipeline
+    from clrecon.tune.runners import synthetic_frame
 
     w, h = SIZE
     npx = w * h
@@ -234,11 +234,11 @@ def test_safeguarded_method_is_looked_into():
                 repeats=REPEATS, peak=False)
     (run,) = res["runs"]
     pb = run["pass_bytes"]
-    sheared = "filter_sheared_x + filter_sheared_y"
+    sheared = "filter_sheared_recursive + filter_sheared_gauss"
     assert {"safeguard_split", "reproject", "reproject (halves)", sheared,
-            "filter_sheared_x (halves) + filter_sheared_y (halves)",
+            "filter_sheared_recursive (halves) + filter_sheared_gauss (halves)",
             "safeguard_stats", "safeguard_blend"} <= set(pb)
-    assert run["step_kernels"][sheared] == ["filter_sheared_x", "filter_sheared_y"]
+    assert run["step_kernels"][sheared] == ["filter_sheared_recursive", "filter_sheared_gauss"]
     dev = get_device(0)
     paper = make_pipeline("layered", dev.context, synthetic_frame(w, h, SPP).inspect(),
                           safeguard=False)
@@ -263,7 +263,7 @@ def test_safeguarded_method_is_looked_into():
     assert peak_rows and all(math.isnan(r["value"]) for r in peak_rows)
     md = res["markdown"]
     assert f"| {sheared} |" in md and "not measured" in md
-    assert md.index("| filter_sheared_y |") < md.index(f"| {sheared} |")
+    assert md.index("| filter_sheared_gauss |") < md.index(f"| {sheared} |")
 
 
 def test_plot_bandwidth(result, tmp_path):

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from conftest import trusted_reference
 
+from clrecon.api import METHODS
 from clrecon.bench.trade import TRADES, pareto_front, trade, trade_variants
 from clrecon.cli import main
-from clrecon.core.pipeline import METHODS
 
 
 def test_pareto_front():

@@ -13,9 +13,10 @@ import os
 import pyopencl as cl
 import pytest
 
+from clrecon.api import make_pipeline
 from clrecon.core.device import event_ms
-from clrecon.core.pipeline import DeviceSamples, make_pipeline
-from clrecon.tune.specs import synthetic_frame
+from clrecon.core.pipeline import DeviceSamples
+from clrecon.tune.runners import synthetic_frame
 
 pytestmark = pytest.mark.benchmark_suite
 
