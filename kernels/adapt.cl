@@ -10,7 +10,8 @@
  * Copies move bit patterns (uint), so every copied field is bit-exact (NaN payloads,
  * denormals, -0 included). Motion is copied the same way with MOTION_TLFR == 0; with
  * MOTION_TLFR == 1 the record holds TLFR's perspective motion mv = (mv_x, mv_y, mv_w) at
- * OFF_MOTION and the screen motion is, in float (clrecon/io.py _tlfr_motion, there in float64):
+ * OFF_MOTION and the screen motion is, in float (clrecon/io/tlfr.py _tlfr_motion, there in
+ * float64):
  *   w = depth, t = time, c = position - (c0 / w + c1) * lens
  *   w0 = w - t mv_w, w1 = w + (1 - t) mv_w
  *   miss (!(0 < w < 1e30): inf, >= 1e30, <= 0, NaN)  -> (0, 0)
@@ -24,8 +25,9 @@
  * [g WG ITEMS, (g + 1) WG ITEMS); in step j of ITEMS its items take WG consecutive samples,
  * so every store of a step is contiguous across the group (coalesced writes).
  * Compile-time (host, required): STRIDE, and for each field F in {COLOR, POSITION, DEPTH, LENS,
- * TIME, MOTION} of the layout OFF_F; WRITE_F (0/1, default 0) for each output; MOTION_TLFR
- * (0/1, default 0; needs OFF_POSITION, OFF_DEPTH, OFF_LENS, OFF_TIME).
+ * TIME, MOTION} of the layout OFF_F (required for the fields the build reads: an #error
+ * otherwise; the others are never read); WRITE_F (0/1, default 0) for each output;
+ * MOTION_TLFR (0/1, default 0; needs OFF_POSITION, OFF_DEPTH, OFF_LENS, OFF_TIME).
  * Tunables: WG (local size, default 128), ITEMS (samples per work-item, default 1), STAGE (1:
  * the group first copies its WG * ITEMS records into local memory with contiguous, coalesced
  * loads, then unpacks from there; 0: each item reads its own record from global memory;
@@ -79,6 +81,26 @@
     && !(defined(OFF_POSITION) && defined(OFF_DEPTH) && defined(OFF_LENS) && defined(OFF_TIME))
 #error "adapt.cl: MOTION_TLFR needs OFF_POSITION, OFF_DEPTH, OFF_LENS and OFF_TIME"
 #endif
+/* the offsets of the fields that are not read: any value (every read of one sits behind a
+ * WRITE_<FIELD> or MOTION_TLFR that is a compile-time 0) */
+#ifndef OFF_COLOR
+#define OFF_COLOR 0
+#endif
+#ifndef OFF_POSITION
+#define OFF_POSITION 0
+#endif
+#ifndef OFF_DEPTH
+#define OFF_DEPTH 0
+#endif
+#ifndef OFF_LENS
+#define OFF_LENS 0
+#endif
+#ifndef OFF_TIME
+#define OFF_TIME 0
+#endif
+#ifndef OFF_MOTION
+#define OFF_MOTION 0
+#endif
 
 #define ADAPT_MISS_DEPTH 1e30f
 
@@ -122,6 +144,8 @@ void unpack_records(__global const uint *restrict rec, const ulong n, const floa
 #else
 #define REC(o) rec[r + (o)]
 #endif
+#define REC2(o) ((uint2)(REC(o), REC((o) + 1)))
+#define REC3(o) ((uint3)(REC(o), REC((o) + 1), REC((o) + 2)))
     for (int j = 0; j < ITEMS; ++j) {
         const size_t k = base + (size_t)j * WG + lid;
         if (k >= n)
@@ -131,35 +155,28 @@ void unpack_records(__global const uint *restrict rec, const ulong n, const floa
 #else
         const size_t r = k * STRIDE;
 #endif
-#if WRITE_COLOR
-        vstore3((uint3)(REC(OFF_COLOR), REC(OFF_COLOR + 1), REC(OFF_COLOR + 2)), k, color);
-#endif
-#if WRITE_POSITION
-        vstore2((uint2)(REC(OFF_POSITION), REC(OFF_POSITION + 1)), k, position);
-#endif
-#if WRITE_DEPTH
-        depth[k] = REC(OFF_DEPTH);
-#endif
-#if WRITE_LENS
-        vstore2((uint2)(REC(OFF_LENS), REC(OFF_LENS + 1)), k, lens);
-#endif
-#if WRITE_TIME
-        time[k] = REC(OFF_TIME);
-#endif
-#if WRITE_MOTION
-#if MOTION_TLFR
-        const float2 m = adapt_tlfr_motion(
-            as_float2((uint2)(REC(OFF_POSITION), REC(OFF_POSITION + 1))),
-            as_float(REC(OFF_DEPTH)),
-            as_float2((uint2)(REC(OFF_LENS), REC(OFF_LENS + 1))),
-            as_float(REC(OFF_TIME)),
-            as_float3((uint3)(REC(OFF_MOTION), REC(OFF_MOTION + 1), REC(OFF_MOTION + 2))),
-            c0, c1);
-        vstore2(as_uint2(m), k, motion);
-#else
-        vstore2((uint2)(REC(OFF_MOTION), REC(OFF_MOTION + 1)), k, motion);
-#endif
-#endif
+        /* compile-time conditions: an output the build does not write is never touched */
+        if (WRITE_COLOR)
+            vstore3(REC3(OFF_COLOR), k, color);
+        if (WRITE_POSITION)
+            vstore2(REC2(OFF_POSITION), k, position);
+        if (WRITE_DEPTH)
+            depth[k] = REC(OFF_DEPTH);
+        if (WRITE_LENS)
+            vstore2(REC2(OFF_LENS), k, lens);
+        if (WRITE_TIME)
+            time[k] = REC(OFF_TIME);
+        if (WRITE_MOTION && MOTION_TLFR) {
+            const float2 m = adapt_tlfr_motion(
+                as_float2(REC2(OFF_POSITION)), as_float(REC(OFF_DEPTH)),
+                as_float2(REC2(OFF_LENS)), as_float(REC(OFF_TIME)), as_float3(REC3(OFF_MOTION)),
+                c0, c1);
+            vstore2(as_uint2(m), k, motion);
+        } else if (WRITE_MOTION) {
+            vstore2(REC2(OFF_MOTION), k, motion);
+        }
     }
 #undef REC
+#undef REC2
+#undef REC3
 }

@@ -4,7 +4,7 @@
  *   atomic_add_f32(p, v)   float add into global memory. Uses the native fp32 atomic add
  *                          where the device offers it (cl_ext_float_atomics with the fp32
  *                          global add capability, OpenCL C >= 2.0: the host passes
- *                          -cl-std and -DCLRECON_FP32_ATOMIC_ADD=1, clrecon.device
+ *                          -cl-std and -DCLRECON_FP32_ATOMIC_ADD=1, clrecon.core.device
  *                          language_options; or the compiler defines the feature macro
  *                          __opencl_c_ext_fp32_global_atomic_add), a compare-and-swap loop on
  *                          the bit pattern otherwise. CLRECON_NATIVE_F32_ADD says which (1/0).
@@ -14,7 +14,7 @@
  *                          cl_khr_int64_base_atomics). Integer addition is associative, so the
  *                          sum is bit-identical run to run whatever the scheduling. Resolution
  *                          2^-FIXED_SHIFT; magnitude limit 2^(63-FIXED_SHIFT) (8.8e12 at 20).
- *                          Read back on the host with clrecon.device.fixed_to_float.
+ *                          Read back on the host with clrecon.core.device.fixed_to_float.
  * Scaled fixed point (deterministic=True of the scatter passes splat and reproject): a sum of
  * terms whose absolute values add up to less than 2^klog2 * m is accumulated in units of
  * 2^-e, e = fixed_exponent(klog2, m) = 61 - klog2 - (ilogb(m) + 1): every partial sum stays
@@ -26,6 +26,8 @@
  * clamped to >= 2^-60 and e to <= 120 (a float scale; a smaller scale only gives up
  * resolution). fixed_color_bound gathers m per colour channel: max |colour|, as uint bits
  * (the order of non-negative floats), with atomic_max, which does not depend on order either.
+ * Images: pixel_index(x, y, W) (row-major), window_clip(x, y, r, W, H) (a window's pixels
+ * inside the image).
  * Tunables: FIXED_SHIFT (fraction bits of atomic_add_fixed, default 20).
  */
 #ifndef CLRECON_COMMON_H
@@ -137,5 +139,14 @@ inline void fixed_color_bound(__global const float *color, const int n,
 
 /* Pixel index of a row-major (H, W) image. */
 inline int pixel_index(int x, int y, int width) { return y * width + x; }
+
+/* The (2 r + 1)^2 window around pixel (x, y) clipped to a (height, width) image, as inclusive
+ * bounds (x0, y0, x1, y1): a windowed sum visits rows y0..y1, each from x0 to x1, which is
+ * the order of a loop over -r..r that skips the pixels outside. */
+__attribute__((always_inline)) inline int4 window_clip(int x, int y, int r, int width,
+                                                       int height)
+{
+    return (int4)(max(x - r, 0), max(y - r, 0), min(x + r, width - 1), min(y + r, height - 1));
+}
 
 #endif /* CLRECON_COMMON_H */

@@ -109,16 +109,15 @@ __kernel SCALAR_WORK_ITEMS
 void filter_mip_sample(__global const float *params, __global const float *grids,
                        __global const float *pyr, __global float *filtered)
 {
-    const int i = get_global_id(0) - 1, j = get_global_id(1) - 1, slot = get_global_id(2);
-    __global const float *p = mip_pixel_params(params, slot, i, j);
+    int i, j, slot;
+    __global const float *p = layered_filtered_item(params, 1, &i, &j, &slot);
     if (!p)
         return;
-    const int dim = (int)p[P_DIM];
     const mip_footprint fp = mip_footprint_of(p, i, j);
     __global const float *g0 = grids + (size_t)slot * NCH * DMAX * DMAX;
     __global const float *py = pyr + (size_t)slot * NCH * PYR_PLANE;
-    const mip_level m0 = mip_level_of(g0, py, dim, fp.l);
-    const mip_level m1 = mip_level_of(g0, py, dim, fp.f > 0.0f ? fp.l + 1 : fp.l);
+    const mip_level m0 = mip_level_of(g0, py, fp.dim, fp.l);
+    const mip_level m1 = mip_level_of(g0, py, fp.dim, fp.l1);
     float acc[NCH] = {0.0f};
     for (int t = 0; t < 4; ++t) {
         for (int m = 0; m < fp.n; ++m) {
@@ -128,7 +127,5 @@ void filter_mip_sample(__global const float *params, __global const float *grids
                 mip_bilinear(m1, q.x, q.y, fp.f, acc);
         }
     }
-    __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);
-    for (int c = 0; c < NCH; ++c)
-        out[c * FT * FT] = acc[c] / fp.n;
+    layered_store_filtered(filtered, slot, i, j, acc, (float)fp.n);
 }

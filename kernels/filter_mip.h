@@ -35,11 +35,12 @@ inline int level_offset(int dim, int l)  /* offset of level l >= 1 within a chan
 
 /* The probes of filtered pixel (i, j) of a slot with parameters p: probe m (0 <= m < n) of
  * tap t (0..3) is at c0 + offs[t] + along(m) eu, read trilinearly from levels l (weight
- * 1 - f) and l + 1 (weight f); the sum is divided by n. */
+ * 1 - f) and l1 = l + 1 (weight f; l1 = l where f = 0) of the pyramid of the slot's D x D
+ * grid (dim = D); the sum is divided by n. */
 typedef struct {
     float2 c0, eu, offs[4];
     float spread, f;
-    int n, l;
+    int n, l, l1, dim;
 } mip_footprint;
 
 inline mip_footprint mip_footprint_of(__global const float *p, int i, int j)
@@ -57,6 +58,8 @@ inline mip_footprint mip_footprint_of(__global const float *p, int i, int j)
     const float lod = clamp(log2(fmax(MIP_ALPHA * minor, 1.0f)), 0.0f, (float)(NLEV - 1));
     fp.l = min((int)lod, NLEV - 2 < 0 ? 0 : NLEV - 2);
     fp.f = NLEV > 1 ? lod - (float)fp.l : 0.0f;
+    fp.l1 = fp.f > 0.0f ? fp.l + 1 : fp.l;
+    fp.dim = (int)p[P_DIM];
     fp.c0 = (float2)(i + g, j + g);
     fp.eu = eu;
     fp.offs[0] = MIP_D * su * eu;
@@ -70,18 +73,6 @@ inline float2 mip_probe(const mip_footprint *fp, int t, int m)
 {
     const float along = fp->n > 1 ? fp->spread * (2.0f * (m + 0.5f) / fp->n - 1.0f) : 0.0f;
     return fp->c0 + fp->offs[t] + along * fp->eu;
-}
-
-/* The parameters of the slot of filtered pixel (i, j), or 0 where the slot is empty or
- * (i, j) lies outside its [-1, T/s]^2 (the work-item then has nothing to do). */
-inline __global const float *mip_pixel_params(__global const float *params, int slot, int i,
-                                              int j)
-{
-    __global const float *p = params + (size_t)slot * NPAR;
-    if (p[P_DIM] == 0.0f)
-        return 0;
-    const int side = TILE / (int)p[P_SCALE];
-    return i > side || j > side ? 0 : p;
 }
 
 #endif /* CLRECON_FILTER_MIP_H */

@@ -117,26 +117,22 @@ __kernel void filter_mip_sample_image(__global const float *params,
                                       __read_only image2d_t rgbw, __read_only image2d_t behind,
                                       __global float *filtered)
 {
-    const int i = get_global_id(0) - 1, j = get_global_id(1) - 1, slot = get_global_id(2);
-    __global const float *p = mip_pixel_params(params, slot, i, j);
+    int i, j, slot;
+    __global const float *p = layered_filtered_item(params, 1, &i, &j, &slot);
     if (!p)
         return;
-    const int dim = (int)p[P_DIM];
     const mip_footprint fp = mip_footprint_of(p, i, j);
-    const int l1 = fp.f > 0.0f ? fp.l + 1 : fp.l;
     const int2 o = slot_origin(slot);
-    const int2 box0 = o + mip_box(fp.l), box1 = o + mip_box(l1);
-    const int side0 = level_side(dim, fp.l), side1 = level_side(dim, l1);
+    const int2 box0 = o + mip_box(fp.l), box1 = o + mip_box(fp.l1);
+    const int side0 = level_side(fp.dim, fp.l), side1 = level_side(fp.dim, fp.l1);
     float acc[NCH] = {0.0f};
     for (int t = 0; t < 4; ++t) {
         for (int m = 0; m < fp.n; ++m) {
             const float2 q = mip_probe(&fp, t, m);
             mip_bilinear_image(rgbw, behind, box0, side0, fp.l, q.x, q.y, 1.0f - fp.f, acc);
             if (fp.f > 0.0f)
-                mip_bilinear_image(rgbw, behind, box1, side1, l1, q.x, q.y, fp.f, acc);
+                mip_bilinear_image(rgbw, behind, box1, side1, fp.l1, q.x, q.y, fp.f, acc);
         }
     }
-    __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);
-    for (int c = 0; c < NCH; ++c)
-        out[c * FT * FT] = acc[c] / fp.n;
+    layered_store_filtered(filtered, slot, i, j, acc, (float)fp.n);
 }

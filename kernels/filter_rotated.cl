@@ -14,7 +14,6 @@
  */
 #include "layered.h"
 
-
 /* Bilinear lookup of all channels at grid coordinate (x, y); outside reads 0. */
 inline void rotated_tap(__global const float *g, int dim, float x, float y, float wk,
                         float *acc)
@@ -60,14 +59,11 @@ __kernel void filter_rotated_u(__global const float *params, __global const floa
 __kernel void filter_rotated_v(__global const float *params, __global const float *tmp,
                                __global float *filtered)
 {
-    const int i = get_global_id(0) - 1, j = get_global_id(1) - 1, slot = get_global_id(2);
-    __global const float *p = params + (size_t)slot * NPAR;
+    int i, j, slot;
+    __global const float *p = layered_filtered_item(params, 1, &i, &j, &slot);
+    if (!p)
+        return;
     const int dim = (int)p[P_DIM];
-    if (dim == 0)
-        return;
-    const int side = TILE / (int)p[P_SCALE];
-    if (i > side || j > side)
-        return;
     const float g0 = p[P_GUARD];
     const float sig = p[P_SV] / p[P_SCALE];
     const float dx = -p[P_SIN], dy = p[P_COS];
@@ -77,7 +73,5 @@ __kernel void filter_rotated_v(__global const float *params, __global const floa
     __global const float *g = tmp + (size_t)slot * NCH * DMAX * DMAX;
     for (int k = -kmax; k <= kmax; ++k)
         rotated_tap(g, dim, i + g0 + k * dx, j + g0 + k * dy, exp(inv * (float)(k * k)), acc);
-    __global float *o = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);
-    for (int c = 0; c < NCH; ++c)
-        o[c * FT * FT] = acc[c];
+    layered_store_filtered(filtered, slot, i, j, acc, 1.0f);
 }

@@ -9,23 +9,30 @@
  * degrees off the x axis has s_v << 1 in the paper's form, and one tap per row would then
  * collapse it to a point (measured: 140 px motion lost 6 dB).
  *
- * filter_sheared_x: one work-item per (grid line, slot), range (DMAX, tiles * MAXP); the line
- *   is row (axis 0) or column (axis 1) `line`; lines of empty slots and lines >= D return.
- *   In place on every channel: forward y[i] = (1 - gamma) x[i] + gamma y[i - 1] (y[-1] = 0),
- *   then the same backward, RECURSIONS times. gamma gives each pair the variance
+ * The two passes are named for what they do, which P_AXIS does not change (as
+ * filter_sheared_x / _y they ran along y and x with axis 1):
+ * filter_sheared_recursive: the recursive filter along the recursive axis (x with axis 0, y
+ *   with axis 1), in place on the grids. One work-item per (grid line, slot), range (DMAX,
+ *   tiles * MAXP); the line is row (axis 0) or column (axis 1) `line`; lines of empty slots
+ *   and lines >= D return. On every channel: forward
+ *   y[i] = (1 - gamma) x[i] + gamma y[i - 1] (y[-1] = 0), then the same backward, RECURSIONS
+ *   times. gamma gives each pair the variance
  *   2 gamma / (1 - gamma)^2 = v / RECURSIONS, v the variance of the Gaussian of std s_u
  *   sampled at integers (the same discrete filter the Gaussian taps apply; for s_u >= 2 it is
  *   s_u^2, for the in-focus 0.33 px about 0.02). Eq. 10's gamma = exp(-sqrt2 / s_u) is the
  *   large-s_u limit.
- * filter_sheared_y: one work-item per four filtered pixels (i .. i + 3, j) in [-1, T/s]^2 of a
- *   slot, range (ceil(FT / 4), FT, tiles * MAXP), computed as float4s: out = sum_k exp(-k^2 / (2 s_v^2)) grid((i, j) + G + k e),
+ * filter_sheared_gauss: the Gaussian along the sheared axis e, from the grids into the
+ *   filtered images. One work-item per four filtered pixels (i .. i + 3, j) in [-1, T/s]^2
+ *   of a slot, range (ceil(FT / 4), FT, tiles * MAXP), computed as float4s:
+ *   out = sum_k exp(-k^2 / (2 s_v^2)) grid((i, j) + G + k e),
  *   e = (beta, 1) or (1, beta), k = -ceil(3 s_v) .. ceil(3 s_v), linear interpolation along
  *   the recursive axis, taps outside the grid dropped. Unnormalised: composite divides the
  *   channels by each other.
  *   grids     float (tiles, MAXP, NCH, DMAX, DMAX), row stride D (reproject's layout)
  *   filtered  float (tiles, MAXP, NCH, FT, FT), index (j + 1) * FT + (i + 1)
- * Compile-time: TILE, MAXP, GMAX, RECURSIONS. The local size of filter_sheared_y is a
- * launch parameter only (tuned).
+ *   params    float (tiles, MAXP, NPAR) from partition_setup (P_SHU, P_SHV, P_BETA, P_AXIS)
+ * Compile-time: TILE, MAXP, GMAX, RECURSIONS. The local size of filter_sheared_gauss is a
+ * launch parameter only (tuned); filter_sheared_recursive's is the runtime's.
  */
 #include "layered.h"
 #include "vec_hint.h"
@@ -54,7 +61,7 @@ inline float recursive_gamma(float v)
     return v > 1e-6f ? ((v + 1.0f) - sqrt(2.0f * v + 1.0f)) / v : 0.0f;
 }
 
-__kernel void filter_sheared_x(__global const float *params, __global float *grids)
+__kernel void filter_sheared_recursive(__global const float *params, __global float *grids)
 {
     const int line = get_global_id(0), slot = get_global_id(1);
     __global const float *p = params + (size_t)slot * NPAR;
@@ -104,21 +111,17 @@ __kernel void filter_sheared_x(__global const float *params, __global float *gri
     } while (0)
 
 __kernel SCALAR_WORK_ITEMS
-void filter_sheared_y(__global const float *params, __global const float *grids,
-                      __global float *filtered)
+void filter_sheared_gauss(__global const float *params, __global const float *grids,
+                          __global float *filtered)
 {
     /* four outputs (i0 .. i0 + 3, j) per work-item, as one float4 per channel: along x they
      * are consecutive in the grid for either axis (axis 0: along u, axis 1: along w), so a
      * tap is two vector loads per channel where all four lanes lie inside the grid */
-    const int i0 = 4 * (int)get_global_id(0) - 1, j = get_global_id(1) - 1;
-    const int slot = get_global_id(2);
-    __global const float *p = params + (size_t)slot * NPAR;
-    const int dim = (int)p[P_DIM];
-    if (dim == 0)
+    int i0, j, slot;
+    __global const float *p = layered_filtered_item(params, 4, &i0, &j, &slot);
+    if (!p)
         return;
-    const int side = TILE / (int)p[P_SCALE];
-    if (i0 > side || j > side)
-        return;
+    const int dim = (int)p[P_DIM], side = TILE / (int)p[P_SCALE];
     const int g = (int)p[P_GUARD];
     const float sv = p[P_SHV], beta = p[P_BETA];
     /* (u, w): position along the recursive axis and the tap axis; axis 1 swaps x and y */
@@ -182,7 +185,7 @@ void filter_sheared_y(__global const float *params, __global const float *grids,
             }
         }
     }
-    __global float *out = filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i0 + 1);
+    __global float *out = layered_filtered_at(filtered, slot, i0, j);
     const int nl = min(4, side - i0 + 1);   /* lanes with i <= side */
     for (int c = 0; c < NCH; ++c) {
         __global float *o = out + c * FT * FT;

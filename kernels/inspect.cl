@@ -12,13 +12,13 @@
  *   motion    float (N, 2)    read only with HAS_MOTION
  *   (the pointer of a field that is not present may be NULL: it is never dereferenced)
  *   n                         N (< 2^31)
- *   width, width_m, width_sh  W and its udiv31() magic (clrecon.inspect.udiv_magic)
+ *   width, width_m, width_sh  W and its udiv31() magic (clrecon.core.inspect.udiv_magic)
  *   spp_m, spp_sh             udiv31() magic of S (only position needs W and S)
  *   c0, c1                    coc(w) = c0 / w + c1 in pixels; a miss (w >= MISS_DEPTH, inf
  *                             and NaN included) has coc = c1
  *   color_lo                  least valid colour channel: 0, or -COLOR_MAX (allow_negative)
  *   coc_lo                    least hit depth whose CoC is within COC_MAX (host:
- *                             clrecon.samples.coc_min_depth, exact for the host formula;
+ *                             clrecon.core.samples.coc_min_depth, exact for the host formula;
  *                             0 when not checked)
  *   result    uint (NSLOT), cleared by inspect_clear, combined with global atomics:
  *     [S_FIRST + r]  smallest i failing rule r, NONE if none       (atomic_min)
@@ -67,7 +67,7 @@
  * more); W and H < 2^24 (pixel coordinates exact in float); WG_SIZE a power of two >= 32.
  * Tunables: WG_SIZE (work-group size: reqd_work_group_size and the local array), ITEMS
  * (samples per work-item), CONTIGUOUS (the visiting order above). Compile-time (set by
- * clrecon/inspect.py): HAS_COLOR, HAS_POSITION, HAS_LENS, HAS_TIME, HAS_MOTION (0/1),
+ * clrecon/core/inspect.py): HAS_COLOR, HAS_POSITION, HAS_LENS, HAS_TIME, HAS_MOTION (0/1),
  * MISS_DEPTH, POS_TOL, MIN_DEPTH, COLOR_MAX, MOTION_MAX (exact float literals), LENS_R2_MAX
  * (exact double literal).
  */
@@ -98,22 +98,22 @@
 #define HAS_MOTION 1
 #endif
 #ifndef MISS_DEPTH
-#define MISS_DEPTH 0x1.93e594p+99f   // float32(1e30), clrecon.samples.MISS_DEPTH
+#define MISS_DEPTH 0x1.93e594p+99f   // float32(1e30), clrecon.core.samples.MISS_DEPTH
 #endif
 #ifndef POS_TOL
-#define POS_TOL 0x1.a36e2ep-14f      // float32(1e-4), clrecon.samples.POSITION_TOLERANCE
+#define POS_TOL 0x1.a36e2ep-14f      // float32(1e-4), clrecon.core.samples.POSITION_TOLERANCE
 #endif
 #ifndef LENS_R2_MAX
 #define LENS_R2_MAX 0x1.000d1b9c68abep+0  // (1 + 1e-4)^2 in double, LENS_TOLERANCE
 #endif
 #ifndef MIN_DEPTH
-#define MIN_DEPTH 0x1.79ca1p-67f         // float32(1e-20), clrecon.samples.MIN_DEPTH
+#define MIN_DEPTH 0x1.79ca1p-67f         // float32(1e-20), clrecon.core.samples.MIN_DEPTH
 #endif
 #ifndef COLOR_MAX
-#define COLOR_MAX 0x1.93e594p+99f        // float32(1e30), clrecon.samples.COLOR_MAX
+#define COLOR_MAX 0x1.93e594p+99f        // float32(1e30), clrecon.core.samples.COLOR_MAX
 #endif
 #ifndef MOTION_MAX
-#define MOTION_MAX 0x1p+16f              // clrecon.samples.MOTION_MAX
+#define MOTION_MAX 0x1p+16f              // clrecon.core.samples.MOTION_MAX
 #endif
 
 #define NRULE 7

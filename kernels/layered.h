@@ -1,12 +1,13 @@
 /* layered.h: definitions shared by the passes of method `layered` (Hasselgren et al. 2015):
- * the depth-bucket function, the per-partition parameter layout, Morton order and xorshift.
+ * the depth-bucket function, the per-partition parameter layout, the filtered images' layout,
+ * Morton order and xorshift.
  *
  * Depth buckets (NBUCKETS, default 32): bucket NBUCKETS-1 holds misses (depth >= 1e30); a hit
  * at depth w goes to clamp(floor(ka / w + kb * w - kc), 0, NBUCKETS-2). With
  * ka = -|c0| / (bw f) and kb = 1 / (dz f) a bucket spans at most bw f pixels of CoC and at
  * most dz f of depth: evenly spaced in CoC near the focus plane, where the CoC term varies
  * fastest, and uniform in depth beyond (the host picks bw, dz and the stretch f >= 1 so the
- * frame's depth range fits; clrecon/layered/reference.py: bucket_params).
+ * frame's depth range fits; clrecon/methods/layered/layout.py: bucket_params).
  *
  * Partition parameters: NPAR floats per (tile, slot), slot-major within a tile:
  *   P_COUNT  samples seen by tile_stats (0: empty slot; slots fill from 0, front to back)
@@ -25,7 +26,9 @@
  *                  recursive along y, Gaussian along (1, beta) (when S_xx > S_yy)
  * Grid pixel (i, j) of a slot is centred at full-res (x0 + (i - G + 0.5) s, ...), (x0, y0)
  * the tile corner. Grids are planar: NCH channels (r, g, b own weight w, behind weight)
- * of DMAX x DMAX floats, DMAX = TILE + 2 * GMAX.
+ * of DMAX x DMAX floats, DMAX = TILE + 2 * GMAX. Filtered images (the filters' output,
+ * composite's input): NCH planes of FT x FT floats per slot, filtered pixel (i, j) in
+ * [-1, T/s]^2 at (j + 1) FT + (i + 1) (layered_filtered_item, layered_filtered_at).
  */
 #ifndef CLRECON_LAYERED_H
 #define CLRECON_LAYERED_H
@@ -57,6 +60,39 @@
 
 enum { P_COUNT, P_LO, P_HI, P_A, P_BX, P_BY, P_SU, P_SV, P_COS, P_SIN, P_SHU, P_SHV, P_BETA,
        P_GAMMA, P_SCALE, P_GUARD, P_REACH, P_DIM, P_AXIS };
+
+/* The start of every kernel that writes a slot's filtered pixels, over the range
+ * (ceil(FT / lanes), FT, tiles * MAXP), `lanes` pixels (i .. i + lanes - 1, j) a work-item:
+ * sets the work-item's first pixel (*i, *j) and *slot, and returns the slot's parameters, or
+ * 0 where the slot is empty or (*i, *j) lies outside its [-1, T/s]^2 (nothing to do). */
+__attribute__((always_inline)) inline __global const float *layered_filtered_item(
+    __global const float *params, int lanes, int *i, int *j, int *slot)
+{
+    *i = lanes * (int)get_global_id(0) - 1;
+    *j = (int)get_global_id(1) - 1;
+    *slot = (int)get_global_id(2);
+    __global const float *p = params + (size_t)*slot * NPAR;
+    if (p[P_DIM] == 0.0f)
+        return 0;
+    const int side = TILE / (int)p[P_SCALE];
+    return *i > side || *j > side ? 0 : p;
+}
+
+/* Filtered pixel (i, j) of a slot, channel 0 (channel c is c FT^2 further on). */
+__attribute__((always_inline)) inline __global float *layered_filtered_at(
+    __global float *filtered, int slot, int i, int j)
+{
+    return filtered + (size_t)slot * NCH * FT * FT + (j + 1) * FT + (i + 1);
+}
+
+/* acc[c] / n into every channel of filtered pixel (i, j) of a slot. */
+__attribute__((always_inline)) inline void layered_store_filtered(
+    __global float *filtered, int slot, int i, int j, const float *acc, float n)
+{
+    __global float *out = layered_filtered_at(filtered, slot, i, j);
+    for (int c = 0; c < NCH; ++c)
+        out[c * FT * FT] = acc[c] / n;
+}
 
 inline int layered_bucket(float w, float ka, float kb, float kc)
 {

@@ -1,6 +1,6 @@
 /* partition_setup.cl: per tile, merge populated depth buckets into at most MAXP partitions and
  * derive each partition's reprojection and screen-space filter (Hasselgren et al. 2015, sec. 4;
- * the derivation is in clrecon/layered/__init__.py).
+ * the derivation is in clrecon/methods/layered/__init__.py).
  *
  * partition_setup: one work-item per tile (1D range).
  *   stats   float (tiles, NBUCKETS, NSTAT) from tile_stats
@@ -19,8 +19,9 @@
  * Sheared form (B B^T = S / s^2, eq. 9): the Gaussian axis is y (P_AXIS 0, beta = S_xy/S_yy)
  * or, when S_xx > S_yy, x (P_AXIS 1, beta = S_xy/S_xx); the recursive std is
  * sqrt(det S / S_axis) / s. Reach: min(G s + ceil(|A| + |b| / 2) + 1, REACH_MAX).
- * Compile-time: TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, REACH_MAX (gather reach cap, px).
- * The local size is a launch parameter only (tuned).
+ * Arguments: ntiles, sigma_x (px, the sigma_x of S above), threshold (the merge test
+ * above). Compile-time: TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, REACH_MAX (gather reach cap,
+ * px). The local size is a launch parameter only (tuned).
  */
 #include "layered.h"
 
@@ -28,16 +29,25 @@
 #define REACH_MAX 96
 #endif
 
+/* A partition's mean signed CoC (the return value) and mean motion (*mx, *my; 0 without
+ * HAS_MOTION) from its statistics s (NSTAT sums, layered.h). */
+__attribute__((always_inline)) inline float layered_means(const float *s, float *mx, float *my)
+{
+    const float n = fmax(s[0], 1e-30f);
+    *mx = 0.0f;
+    *my = 0.0f;
+#if HAS_MOTION
+    *mx = s[3] / n;
+    *my = s[4] / n;
+#endif
+    return s[1] / n;
+}
+
 /* Principal axes of a partition's filter covariance: (lambda_u, lambda_v, cov xx, xy, yy). */
 inline void layered_filter(const float *s, float sx2, float *sig)
 {
-    const float n = fmax(s[0], 1e-30f);
-    const float c = s[1] / n;
-    float mx = 0.0f, my = 0.0f;
-#if HAS_MOTION
-    mx = s[3] / n;
-    my = s[4] / n;
-#endif
+    float mx, my;
+    const float c = layered_means(s, &mx, &my);
     const float iso = c * c * 0.25f + sx2;
     const float a = fmax(iso + mx * mx / 12.0f, 1e-4f);
     const float b = fmax(iso + my * my / 12.0f, 1e-4f);
@@ -83,13 +93,8 @@ inline void layered_write(__global float *p, const float *s, int lo, int hi, flo
 {
     float f[5];
     layered_filter(s, sx2, f);
-    const float n = fmax(s[0], 1e-30f);
-    const float A = s[1] / n;
-    float bx = 0.0f, by = 0.0f;
-#if HAS_MOTION
-    bx = s[3] / n;
-    by = s[4] / n;
-#endif
+    float bx, by;
+    const float A = layered_means(s, &bx, &by);
     /* major axis direction: eigenvector of (lambda_u) */
     const float theta = 0.5f * atan2(2.0f * f[3], f[2] - f[4]);
     int sc = 1;

@@ -29,12 +29,18 @@
  * bounds: float4 per object (xmin, ymin, xmax, ymax) in pixels, from
  *   clrecon/scenes/primitives.py Scene.screen_bounds; infinite for planes and for objects
  *   reaching the lens plane.
- * Kernels:
- *   raytrace_samples: one work-item per pixel of rows [row0, row0 + global size y); SoA outputs
- *     color (npix*S*3), position (npix*S*2), depth (npix*S), lens (npix*S*2), time (npix*S),
- *     motion (npix*S*2), index p*S + i with p = y * W + x.
+ * Kernels (each takes objs, bounds, nobj, width, height and the camera, CAMERA_ARGS: pinhole
+ * centre cx, cy and focal length f in pixels, focus distance F, lens radius R, light =
+ * (direction, ambient), background = (rgb, -)):
+ *   raytrace_samples: one work-item per pixel of rows [row0, row0 + global size y), samples
+ *     0 .. spp - 1 of the sequence of `seed`; SoA outputs (SAMPLE_FIELDS) color (npix*S*3),
+ *     position (npix*S*2), depth (npix*S), lens (npix*S*2), time (npix*S), motion (npix*S*2),
+ *     index p*S + i with p = y * W + x.
  *   raytrace_reference: one work-item per pixel, samples [first, first + count) of the
  *     sequence averaged into out (npix*3).
+ *   (raytrace_pinhole.cl adds the pinhole frame on the same sampler.)
+ * Compile-time: MAX_CANDIDATES (objects kept per pixel after culling; default 64). The 2D
+ * local size is a launch parameter only (tuned).
  */
 #include "common.h"
 
@@ -173,6 +179,30 @@ inline void pixel_shifts(int px, int py, uint seed, uint shift[5])
         shift[k] = hash_u32(shift[k - 1] + 0x632BE5ABU);
 }
 
+/* The sample fields a tracing kernel writes (SoA, ARCHITECTURE.md section 1): one parameter
+ * list for every writer (a kernel's parameters cannot come from a function). */
+#define SAMPLE_FIELDS __global float *color, __global float *position, __global float *depth, \
+    __global float *lens, __global float *time, __global float *motion
+#define SAMPLE_FIELDS_PASS color, position, depth, lens, time, motion
+
+/* The camera and light of every tracing kernel: pinhole centre (cx, cy) and focal length
+ * (px), focus distance, lens radius, light = (direction toward the light, ambient),
+ * background = (rgb, unused); CAMERA_PASS hands them to trace(). */
+#define CAMERA_ARGS const float cx, const float cy, const float focal, const float focus, \
+    const float lens_radius, const float4 light, const float4 background
+#define CAMERA_PASS cx, cy, focal, focus, lens_radius, light.xyz, light.w, background.xyz
+
+/* Sample s into index k of the sample fields. */
+__attribute__((always_inline)) inline void store_sample(const sample_t *s, size_t k, SAMPLE_FIELDS)
+{
+    vstore3(s->color, k, color);
+    vstore2(s->pos, k, position);
+    depth[k] = s->depth;
+    vstore2(s->lens, k, lens);
+    time[k] = s->time;
+    vstore2(s->motion, k, motion);
+}
+
 #ifndef MAX_CANDIDATES
 #define MAX_CANDIDATES 64  // objects kept per pixel after screen-space culling
 #endif
@@ -194,11 +224,31 @@ inline int pixel_candidates(__global const float4 *bounds, int nobj, int px, int
     return n;
 }
 
-inline sample_t trace(__global const float *objs, int nobj, const uchar *cand, int ncand,
-                      int px, int py, uint i,
-                      const uint shift[5], float cx, float cy, float focal, float focus,
-                      float lens_radius, float3 light, float ambient, float3 background)
+/* What every sample of pixel (px, py) shares: its lattice shifts and candidate objects. */
+typedef struct {
+    int px, py;
+    uint shift[5];
+    int ncand;  /* -1: every object (pixel_candidates) */
+    uchar cand[MAX_CANDIDATES];
+} pixel_t;
+
+__attribute__((always_inline)) inline void pixel_setup(
+    __private pixel_t *pix, __global const float4 *bounds, int nobj, int px, int py, uint seed)
 {
+    pix->px = px;
+    pix->py = py;
+    pixel_shifts(px, py, seed, pix->shift);
+    pix->ncand = pixel_candidates(bounds, nobj, px, py, pix->cand);
+}
+
+/* Sample i of pixel pix's sequence. */
+inline sample_t trace(__global const float *objs, int nobj, __private const pixel_t *pix, uint i,
+                      float cx, float cy, float focal, float focus, float lens_radius,
+                      float3 light, float ambient, float3 background)
+{
+    const int px = pix->px, py = pix->py, ncand = pix->ncand;
+    const uint *shift = pix->shift;
+    const uchar *cand = pix->cand;
     sample_t s;
     s.pos = (float2)(px + lattice(i, 0, shift[0]), py + lattice(i, 1, shift[1]));
     /* keep the position strictly inside the pixel whatever the rounding */
@@ -239,34 +289,19 @@ inline sample_t trace(__global const float *objs, int nobj, const uchar *cand, i
 }
 
 __kernel void raytrace_samples(__global const float *objs, __global const float4 *bounds,
-                               const int nobj,
-                               const int width, const int height, const int spp,
-                               const int row0, const uint seed, const float cx, const float cy,
-                               const float focal, const float focus, const float lens_radius,
-                               const float4 light, const float4 background,
-                               __global float *color, __global float *position,
-                               __global float *depth, __global float *lens,
-                               __global float *time, __global float *motion)
+                               const int nobj, const int width, const int height,
+                               const int spp, const int row0, const uint seed, CAMERA_ARGS,
+                               SAMPLE_FIELDS)
 {
     const int px = get_global_id(0), py = get_global_id(1) + row0;
     if (px >= width || py >= height)
         return;
-    uint shift[5];
-    pixel_shifts(px, py, seed, shift);
-    uchar cand[MAX_CANDIDATES];
-    const int ncand = pixel_candidates(bounds, nobj, px, py, cand);
+    pixel_t pix;
+    pixel_setup(&pix, bounds, nobj, px, py, seed);
     const size_t base = (size_t)pixel_index(px, py, width) * spp;
     for (int i = 0; i < spp; ++i) {
-        const sample_t s = trace(objs, nobj, cand, ncand, px, py, (uint)i, shift, cx, cy,
-                                 focal, focus,
-                                 lens_radius, light.xyz, light.w, background.xyz);
-        const size_t k = base + i;
-        vstore3(s.color, k, color);
-        vstore2(s.pos, k, position);
-        depth[k] = s.depth;
-        vstore2(s.lens, k, lens);
-        time[k] = s.time;
-        vstore2(s.motion, k, motion);
+        const sample_t s = trace(objs, nobj, &pix, (uint)i, CAMERA_PASS);
+        store_sample(&s, base + i, SAMPLE_FIELDS_PASS);
     }
 }
 
@@ -278,7 +313,7 @@ __kernel void raytrace_samples(__global const float *objs, __global const float4
  * tracer agree); -cl-opt-disable builds it right, and so does the hint below, which keeps
  * one work-item per lane for this kernel alone. Passing the background as float4 instead
  * only moved the fault to hit pixels. The hint cost no speed where measured (fence 160x120
- * at 32 spp: 84 ms, the wrong vectorised build 152 ms). tests/test_trusted_reference.py
+ * at 32 spp: 84 ms, the wrong vectorised build 152 ms). tests/unit/test_trusted_reference.py
  * checks this kernel against the NumPy tracer on every device. */
 #ifdef cl_intel_vec_len_hint
 #define REFERENCE_VEC_HINT __attribute__((intel_vec_len_hint(1)))
@@ -288,24 +323,18 @@ __kernel void raytrace_samples(__global const float *objs, __global const float4
 
 REFERENCE_VEC_HINT
 __kernel void raytrace_reference(__global const float *objs, __global const float4 *bounds,
-                                 const int nobj,
-                                 const int width, const int height, const uint first,
-                                 const uint count, const uint seed, const float cx,
-                                 const float cy, const float focal, const float focus,
-                                 const float lens_radius, const float4 light,
-                                 const float4 background, __global float *out)
+                                 const int nobj, const int width, const int height,
+                                 const uint first, const uint count, const uint seed,
+                                 CAMERA_ARGS, __global float *out)
 {
     const int px = get_global_id(0), py = get_global_id(1);
     if (px >= width || py >= height)
         return;
-    uint shift[5];
-    pixel_shifts(px, py, seed, shift);
-    uchar cand[MAX_CANDIDATES];
-    const int ncand = pixel_candidates(bounds, nobj, px, py, cand);
+    pixel_t pix;
+    pixel_setup(&pix, bounds, nobj, px, py, seed);
     float3 sum = (float3)(0.0f);
     for (uint i = first; i < first + count; ++i) {
-        const sample_t s = trace(objs, nobj, cand, ncand, px, py, i, shift, cx, cy, focal, focus,
-                                 lens_radius, light.xyz, light.w, background.xyz);
+        const sample_t s = trace(objs, nobj, &pix, i, CAMERA_PASS);
         sum += s.color;
     }
     vstore3(sum / (float)count, pixel_index(px, py, width), out);

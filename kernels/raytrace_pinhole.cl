@@ -11,26 +11,15 @@
 
 __kernel void raytrace_pinhole(__global const float *objs, __global const float4 *bounds,
                                const int nobj, const int width, const int height,
-                               const int row0, const float cx, const float cy,
-                               const float focal, const float focus, const float lens_radius,
-                               const float4 light, const float4 background,
-                               __global float *color, __global float *position,
-                               __global float *depth, __global float *lens,
-                               __global float *time, __global float *motion)
+                               const int row0, CAMERA_ARGS, SAMPLE_FIELDS)
 {
     const int px = get_global_id(0), py = get_global_id(1) + row0;
     if (px >= width || py >= height)
         return;
-    const uint shift[5] = {0x80000000U, 0x80000000U, 0x80000000U, 0x80000000U, 0x80000000U};
-    uchar cand[MAX_CANDIDATES];
-    const int ncand = pixel_candidates(bounds, nobj, px, py, cand);
-    const sample_t s = trace(objs, nobj, cand, ncand, px, py, 0u, shift, cx, cy, focal, focus,
-                             lens_radius, light.xyz, light.w, background.xyz);
-    const int k = pixel_index(px, py, width);
-    vstore3(s.color, k, color);
-    vstore2(s.pos, k, position);
-    depth[k] = s.depth;
-    vstore2(s.lens, k, lens);
-    time[k] = s.time;
-    vstore2(s.motion, k, motion);
+    pixel_t pix;
+    pixel_setup(&pix, bounds, nobj, px, py, 0u);
+    for (int k = 0; k < 5; ++k)
+        pix.shift[k] = 0x80000000U;  /* every lattice dimension at 1/2 (the header) */
+    const sample_t s = trace(objs, nobj, &pix, 0u, CAMERA_PASS);
+    store_sample(&s, pixel_index(px, py, width), SAMPLE_FIELDS_PASS);
 }

@@ -32,7 +32,8 @@
  * LOCAL_ACC == 1 (the host: 16 DMAX^2 bytes of local memory fit): with WG_X == 1 a nearest
  * splat's own channels accumulate in local memory (OWN_LOCAL below).
  * Compile-time: SPP, TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, SPLAT_BILINEAR, SUBSAMPLE,
- * FIXED, LOCAL_ACC.
+ * FIXED, LOCAL_ACC. The vector lanes (VW samples of a pixel at once) are in
+ * reproject_lanes.h.
  * Tunables: WG_X (work-group size, the host launches with it).
  */
 #include "common.h"
@@ -59,6 +60,8 @@
 #if FIXED && !CLRECON_HAS_FIXED
 #error "FIXED needs cl_khr_int64_base_atomics"
 #endif
+
+#include "reproject_lanes.h"  /* VW: several samples of a pixel at once */
 
 /* Hash of block row cy for blocks of side sub: it picks the row and column offset of the
  * pixel read from every block of that row. */
@@ -101,40 +104,6 @@ inline void splat(__global ACC *grid, int dim, int gx, int gy, float wt, float3 
     }
 }
 
-/* VW consecutive samples of a pixel in one vector: SPP's largest factor among 8 and 4 (CPU
- * compilers map floatVW onto SIMD registers; VW = 1 otherwise). Each lane computes exactly
- * the scalar expression (FP_CONTRACT is off in layered.h), so every width gives the same
- * grids. Writes per lane the depth bucket (as float, from `buckets`) and the grid position;
- * returns 0 without reading position, lens and time when every lane is in front of the slot
- * (bucket < lo). */
-#if SPP % 8 == 0
-#define VW 8
-#elif SPP % 4 == 0
-#define VW 4
-#else
-#define VW 1
-#endif
-
-#if VW == 8
-typedef float8 floatv;
-typedef int8 intv;
-#define VLOAD vload8
-#define CONVERT_INTV convert_int8
-#define VSTORE vstore8
-#define VLOAD2 vload16
-#define CONVERT_FLOATV convert_float8
-#define CONVERT_UCHARV convert_uchar8
-#elif VW == 4
-typedef float4 floatv;
-typedef int4 intv;
-#define VLOAD vload4
-#define CONVERT_INTV convert_int4
-#define VSTORE vstore4
-#define VLOAD2 vload8
-#define CONVERT_FLOATV convert_float4
-#define CONVERT_UCHARV convert_uchar4
-#endif
-
 /* OWN_LOCAL: the owner (one work-item, plain adds) of a nearest-splat slot accumulates its
  * own channels as one float4 (r, g, b, weight) per cell in local memory and writes the planes
  * at the end: one vector add a sample instead of four scalar ones into planes DMAX^2 floats
@@ -142,71 +111,6 @@ typedef int4 intv;
  * aliasing). Measured at 1280x720 8 spp (deep, PoCL): 1.05-1.1x. The same adds in the same
  * order: the same sums. */
 #define OWN_LOCAL (LOCAL_ACC && WG_X == 1 && !FIXED && !SPLAT_BILINEAR && VW > 1)
-
-#if VW > 1
-/* Bit j set where lane j of mask m is (all ones). */
-inline uint lane_bits(intv m)
-{
-#if VW == 8
-    const intv b = m & (intv)(1, 2, 4, 8, 16, 32, 64, 128);
-    const int4 h = b.lo | b.hi;
-#else
-    const int4 h = m & (int4)(1, 2, 4, 8);
-#endif
-    const int2 q = h.lo | h.hi;
-    return (uint)(q.x | q.y);
-}
-
-/* layered_bucket of VW depths, as float (the scalar expression in every lane) */
-inline floatv bucket_lanes(floatv w, float ka, float kb, float kc)
-{
-    floatv l = ka / w;
-    l = l + kb * w;
-    l = l - kc;
-    l = clamp(floor(l), 0.0f, (float)(NBUCKETS - 2));
-    /* misses and NaN: the last bucket, as layered_bucket */
-    return select((floatv)(NBUCKETS - 1), l, isless(w, (floatv)(MISS_DEPTH)));
-}
-#endif
-
-inline int reproject_lanes(size_t s0, __global const float *position,
-                           __global const uchar *buckets, __global const float *lens,
-                           __global const float *time, int lo, float A, float2 bm, int x0,
-                           int y0, float inv_s, float g, float *gx, float *gy, float *bk)
-{
-#if VW == 1
-    bk[0] = (float)buckets[s0];
-    if (bk[0] < (float)lo)
-        return 0;
-    float2 q = vload2(s0, position) - A * vload2(s0, lens);
-#if HAS_MOTION
-    q -= (time[s0] - 0.5f) * bm;
-#endif
-    gx[0] = (q.x - x0) * inv_s + g;
-    gy[0] = (q.y - y0) * inv_s + g;
-    return 1;
-#else
-    const floatv b = CONVERT_FLOATV(VLOAD(0, buckets + s0));
-    VSTORE(b, 0, bk);
-    /* every sample in front of the slot: skip the other fields' reads */
-    if (!any(isgreaterequal(b, (floatv)((float)lo))))
-        return 0;
-#if VW == 8
-    const float16 pp = VLOAD2(0, position + 2 * s0), ll = VLOAD2(0, lens + 2 * s0);
-#else
-    const float8 pp = VLOAD2(0, position + 2 * s0), ll = VLOAD2(0, lens + 2 * s0);
-#endif
-    floatv qx = pp.even - A * ll.even, qy = pp.odd - A * ll.odd;
-#if HAS_MOTION
-    const floatv dt = VLOAD(0, time + s0) - 0.5f;
-    qx -= dt * bm.x;
-    qy -= dt * bm.y;
-#endif
-    VSTORE((qx - (float)x0) * inv_s + g, 0, gx);
-    VSTORE((qy - (float)y0) * inv_s + g, 0, gy);
-    return 1;
-#endif
-}
 
 #if NBUCKETS > 256
 #error "reproject_buckets stores a bucket in a uchar: NBUCKETS <= 256"

@@ -1,6 +1,6 @@
 /* The per-pixel safeguard: an error estimate for any method's image, from the samples
  * themselves, and the blend toward the unbiased box estimate that it drives
- * (clrecon/safeguard.py has the derivation and the NumPy reference).
+ * (clrecon/methods/safeguard.py has the derivation and the NumPy reference).
  *
  *   safeguard_split  copy one sample field into its two halves (samples 0..ha-1, ha..S-1 of
  *                    each pixel): two independent estimates of everything
@@ -13,7 +13,13 @@
  *                    error b2 + mean3(vm), vbw = max(mean3(vb), mean7(vb)), the weight
  *                    w = vbw / (vbw + error), the image and its estimated squared error
  *                    (box's own: mean3(vb), unbiased)
+ * Arguments: split: src (P, S, C) into dst_a (P, ha, C) and dst_b (P, S - ha, C), C = `width`
+ * floats a sample; stats: color (H, W, S, 3), m, ma, mb (H, W, 3) the method's images of the
+ * frame and of its halves, box (H, W, 3), stats float4 (H, W); blend: out (H, W, 3), error
+ * (H, W). Preconditions: 1 <= ha < S (both halves hold samples). No compile-time options;
+ * the local sizes are launch parameters only.
  */
+#include "common.h"
 
 __kernel void safeguard_split(__global const float *src, __global float *dst_a,
                               __global float *dst_b, int pixels, int spp, int ha, int width)
@@ -50,7 +56,7 @@ __kernel void safeguard_stats(__global const float *color, __global const float 
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= width || y >= height)
         return;
-    const int p = y * width + x;
+    const int p = pixel_index(x, y, width);
     const __global float *c = color + (size_t)p * spp * 3;
     float3 sa = (float3)(0.0f), sb = (float3)(0.0f);
     for (int i = 0; i < ha; ++i)
@@ -92,28 +98,16 @@ __kernel void safeguard_blend(__global const float4 *stats, __global const float
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= width || y >= height)
         return;
+    const int4 win = window_clip(x, y, 3, width, height);  /* the 7x7 window */
     int emax = INT_MIN;
-    for (int dy = -3; dy <= 3; ++dy) {
-        const int yy = y + dy;
-        if (yy < 0 || yy >= height)
-            continue;
-        for (int dx = -3; dx <= 3; ++dx) {
-            const int xx = x + dx;
-            if (xx >= 0 && xx < width)
-                emax = max(emax, (int)stats[yy * width + xx].w);
-        }
-    }
+    for (int yy = win.y; yy <= win.w; ++yy)
+        for (int xx = win.x; xx <= win.z; ++xx)
+            emax = max(emax, (int)stats[pixel_index(xx, yy, width)].w);
     float vb3 = 0.0f, vb7 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f;
     int n3 = 0, n7 = 0;
-    for (int dy = -3; dy <= 3; ++dy) {
-        const int yy = y + dy;
-        if (yy < 0 || yy >= height)
-            continue;
-        for (int dx = -3; dx <= 3; ++dx) {
-            const int xx = x + dx;
-            if (xx < 0 || xx >= width)
-                continue;
-            float4 s = stats[yy * width + xx];
+    for (int yy = win.y; yy <= win.w; ++yy) {
+        for (int xx = win.x; xx <= win.z; ++xx) {
+            float4 s = stats[pixel_index(xx, yy, width)];
             /* to the window's units; a pixel far dimmer than the window's brightest -> 0 */
             const int shift = max(2 * ((int)s.w - emax), -252);
             s.xyz *= ldexp(1.0f, shift); /* scalar ldexp: Oclgrind's vector form misbehaves */
@@ -121,7 +115,7 @@ __kernel void safeguard_blend(__global const float4 *stats, __global const float
             e7 += e;
             vb7 += s.y;
             ++n7;
-            if (dy >= -1 && dy <= 1 && dx >= -1 && dx <= 1) {
+            if (abs(yy - y) <= 1 && abs(xx - x) <= 1) {  /* the 3x3 window */
                 vb3 += s.y;
                 vm3 += s.z;
                 e3 += e;
@@ -142,7 +136,7 @@ __kernel void safeguard_blend(__global const float4 *stats, __global const float
     const float se3 = sqrt(fmax(ee3 / (float)n3 - mu3 * mu3, 0.0f) / (float)n3);
     const float b2 = fmax(0.0f, fmax(e7 / (float)n7, mu3 - 2.0f * se3));
     const float err_m = b2 + vm3;
-    const int p = y * width + x;
+    const int p = pixel_index(x, y, width);
     const float3 bx = load3(box, p);
     float3 img;
     float err;

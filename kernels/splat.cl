@@ -4,7 +4,7 @@
  * splat_samples (one work-item per sample, atomic adds) and splat_tiles (one work-item per
  * screen tile, k x k phases, plain adds: for CPUs, where float atomics are CAS loops ~10x the
  * cost of an add) draw, for sample k (index (y * W + x) * SPP + i of the SoA fields)
- *   coc    = c0 / depth + c1 (c1 for misses, depth >= 1e30)
+ *   coc    = c0 / depth + c1 (c1 for misses, depth >= 1e30; splat.h splat_coc)
  *   centre = position - coc * lens - (time - 0.5) * motion       (re-centring, section 6.2;
  *            coc scaled down to the table's range where it exceeds it, so the sample stays
  *            inside the clamped PSF; with NDIM == 1 the PSF has no motion and the motion term
@@ -13,7 +13,7 @@
  *            the segment is drawn as nsub PSFs of length |motion| / nsub centred at
  *            centre + ((j + 0.5) / nsub - 0.5) * motion, each with weight / nsub
  *   layer  = floor((1/depth - inv_far) * layer_scale), clamped to [0, NLAYERS)  (0 = farthest;
- *            uniform in 1/depth: constant parallax; misses at 1/depth = 0)
+ *            uniform in 1/depth: constant parallax; misses at 1/depth = 0; splat_layer)
  *   cell   = the nested-grid cell of (|coc|) or (|coc|, |motion| / nsub) (O(1), see psf.py)
  *   weight = (rgb, 1) / (SPP nsub)
  * and adds weight * value at pixel floor(centre) + offset + pad of every point of the cell:
@@ -24,9 +24,9 @@
  * Table: pts short2 (x, y), vals float, offs int (cells + 1); the same for d*; fast uchar.
  * Grid: gn (n0, n1), gsmax (smax0, smax1), ginvb (1/beta0, 1/beta1), levels int4 per 2D level
  *   (first cell, cells along axis 1, cells along axis 0, edge), nlev.
- * Compile-time: SPP, NDIM (1 or 2), HAS_MOTION (0: motion and time unused), NLAYERS,
- * FIXED (1: deterministic=True, splat_samples only, below).
- * Tunables: WG (1D local size, informative).
+ * Compile-time: SPP, NDIM (1 or 2), HAS_MOTION (0: motion and time unused), NLAYERS
+ * (defaults in splat.h), FIXED (1: deterministic=True, splat_samples only, below).
+ * The local size of splat_samples is a launch parameter only (tuned: wg).
  * Samples whose PSF would not fit whole into the padded image (centre closer than `reach`,
  * an upper bound of |offset| after rotation and rounding, to its border) are skipped: a
  * partial Laplacian would corrupt the integration. The host makes the pad wide enough that
@@ -41,22 +41,10 @@
  * integration reads. Integer sums do not depend on the order of the adds: bit-identical run
  * to run.
  */
-#include "common.h"
+#include "splat.h"
 
-#ifndef SPP
-#define SPP 1
-#endif
 #ifndef NDIM
 #define NDIM 1
-#endif
-#ifndef HAS_MOTION
-#define HAS_MOTION 1
-#endif
-#ifndef NLAYERS
-#define NLAYERS 1
-#endif
-#ifndef WG
-#define WG 64
 #endif
 #ifndef FIXED
 #define FIXED 0
@@ -74,8 +62,6 @@
 #define SPLAT_FIXED_ARGS
 #define SPLAT_FIXED_PASS
 #endif
-
-#define MISS_DEPTH 1e30f
 
 inline float splat_grid_coord(float s, float smax, float invb, int n)
 {
@@ -143,8 +129,7 @@ inline void splat_add(__global ACC *dst, const float4 c, const int atomic, const
 inline void splat_one(const int k, const int atomic, SPLAT_ARGS)
 {
     const float z = depth[k];
-    const int miss = z >= MISS_DEPTH;
-    const float coc = miss ? c1 : c0 / z + c1;
+    const float coc = splat_coc(z, c0, c1);
     /* beyond the table's CoC range the PSF is clamped: re-centre by the clamped CoC so that
      * the sample stays inside the PSF that is drawn */
     const float cscale = fabs(coc) > gsmax.x ? gsmax.x / fabs(coc) : 1.0f;
@@ -164,8 +149,7 @@ inline void splat_one(const int k, const int atomic, SPLAT_ARGS)
     if (mlen > 0.0f)
         mdir = mot / mlen;
 #endif
-    const float inv = miss ? 0.0f : 1.0f / z;
-    const int layer = clamp((int)floor((inv - inv_far) * layer_scale), 0, NLAYERS - 1);
+    const int layer = splat_layer(z, inv_far, layer_scale);
     const int cell = splat_cell(fabs(coc), mlen / (float)nsub, gn, gsmax, ginvb, levels, nlev);
     const float4 wgt = (float4)(vload3(k, color), 1.0f) * (1.0f / (float)(SPP * nsub));
     const int use_fast = fast[cell];

@@ -7,7 +7,7 @@
  *   rounded up to GROUP). It
  *   1. reads the samples of its window ((4 SUPER + 2R)^2 pixels, R = 2 or 3, those in the
  *      image) in window order: rows, columns, sample index, which is the reference's tie
- *      order (clrecon/sweep/reference.py), into local records (D or its blend, r, g, b);
+ *      order (clrecon/methods/sweep/reference.py), into local records (D or its blend, r, g, b);
  *   2. sorts their (depth, window position) entries with a stable radix sort in local
  *      memory, once for all its pixels (not once per pixel, nor once per block: a sample
  *      lies in up to four blocks' windows; with SUPER = 2 and R = 2 a work-item reads and
@@ -23,36 +23,16 @@
  *   (positions are not needed: every sample counts as inside its own pixel, as the
  *   reference's clamp makes it). Output: out (H, W, 3) float32.
  * Compile-time: SPP (<= 255), SCALES (2 or 4), SMOOTH_MOTION (0/1), EXPONENT and
- *   EXPONENT_ON (the paper's 1.3 variant: weights raised to EXPONENT), SUPER (1 or 2: the
- *   host takes 2 where its local memory fits, clrecon/sweep/block.py).
+ *   EXPONENT_ON (the paper's 1.3 variant: weights raised to EXPONENT; defaults and R in
+ *   sweep.h), SUPER (1 or 2: the host takes 2 where its local memory fits,
+ *   clrecon/methods/sweep/block.py).
  * Tunables: GROUP (work-items per group; work-items are independent: no barriers, each
  *   has its own local memory: 2 * SORT_SLOTS * 8 + SN * 16 bytes).
  */
-#include "common.h"
+#include "sweep.h"
 
-#ifndef SPP
-#define SPP 16
-#endif
-#ifndef SCALES
-#define SCALES 2
-#endif
-#ifndef SMOOTH_MOTION
-#define SMOOTH_MOTION 1
-#endif
-#ifndef EXPONENT
-#define EXPONENT 1.0f
-#endif
-#ifndef EXPONENT_ON
-#define EXPONENT_ON 0
-#endif
 #ifndef GROUP
 #define GROUP 1  // work-items (blocks) per work-group
-#endif
-
-#if SCALES == 2
-#define R 2
-#else
-#define R 3
 #endif
 #ifndef SUPER
 #define SUPER 1  /* a work-item's blocks per side: 1 or 2 */

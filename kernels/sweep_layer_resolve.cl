@@ -8,8 +8,8 @@
  *           cov_5 += (1 - cov_1) S5
  *   narrow: c += (1 - cov_5) C1 + cov_5 C5;  cov += (1 - cov_5) S1 + cov_5 S5;
  *           cov_1 += (1 - cov_5) S1
- * out (H, W, 3) = c / cov. Compile-time: SPP. Local size: a launch
- * parameter only (tuned).
+ * Arguments: sums float4 (H, W, 3) of sweep_layer_sums, out (H, W, 3) = c / cov.
+ * Compile-time: SPP. Local size: a launch parameter only (tuned).
  */
 #include "common.h"
 
@@ -25,14 +25,9 @@ __kernel void sweep_layer_resolve(__global const float4 *sums, const int width,
         return;
     const int p = pixel_index(px, py, width);
     float4 wide[3] = {(float4)(0.0f), (float4)(0.0f), (float4)(0.0f)};
-    for (int dy = -2; dy <= 2; ++dy) {
-        const int qy = py + dy;
-        if (qy < 0 || qy >= height)
-            continue;
-        for (int dx = -2; dx <= 2; ++dx) {
-            const int qx = px + dx;
-            if (qx < 0 || qx >= width)
-                continue;
+    const int4 win = window_clip(px, py, 2, width, height);  /* the 5x5 window */
+    for (int qy = win.y; qy <= win.w; ++qy) {
+        for (int qx = win.x; qx <= win.z; ++qx) {
             const int q = pixel_index(qx, qy, width);
             for (int l = 0; l < 3; ++l)
                 wide[l] += sums[3 * q + l];

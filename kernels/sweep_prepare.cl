@@ -12,18 +12,11 @@
  * is left without weight (a 1 spp frame whose samples sit on pixel corners gave 0/0).
  * Inputs are the SoA sample fields: color (H,W,S,3), position (H,W,S,2), depth (H,W,S),
  * motion (H,W,S,2). coc(w) = c0 / w + c1 (inf depth gives c1).
- * Compile-time: SPP (samples per pixel, <= 256), SMOOTH_MOTION (0/1).
+ * Compile-time: SPP (samples per pixel, <= 256), SMOOTH_MOTION (0/1; defaults in sweep.h).
  * Local size: a launch parameter only (tuned).
  */
-#include "common.h"
+#include "sweep.h"
 #include "vec_hint.h"
-
-#ifndef SPP
-#define SPP 16
-#endif
-#ifndef SMOOTH_MOTION
-#define SMOOTH_MOTION 1
-#endif
 
 /* v moved strictly inside pixel p (see the header); the NumPy reference does the same */
 inline float sweep_inside(float v, int p)

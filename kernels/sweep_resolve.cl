@@ -4,7 +4,7 @@
  * Input: keys/colors of sweep_prepare (per pixel sorted by depth). Output: out (H, W, 3).
  * Every pixel sweeps the samples of its (2R+1)^2 window (R = 2 or 3; pixels outside the
  * image contribute nothing) in depth order; equal depths keep window order (row-major, then
- * the pixel's own order), as the NumPy reference in clrecon/sweep/reference.py does.
+ * the pixel's own order), as the NumPy reference in clrecon/methods/sweep/reference.py does.
  *
  * Two ways to get that order, same result:
  *   sweep_resolve_pixel: each work-item merges the K sorted lists of its window (K-way
@@ -12,37 +12,19 @@
  *   sweep_resolve_tile: a TILE x TILE work-group loads the sorted keys of the tile and its
  *     apron into local memory, sorts them once (bitonic, by depth then position in the
  *     tile), and every pixel walks that list, skipping samples outside its window.
- * Compile-time: SPP, SCALES (2 or 4), EXPONENT (the paper's 1.3 variant; 1 = off),
- *   SORT_N (power of two >= (TILE + 2R)^2 * SPP, tile kernel only).
+ * Compile-time: SPP, SCALES (2 or 4), EXPONENT and EXPONENT_ON (the paper's 1.3 variant;
+ *   defaults and R in sweep.h), SORT_N (power of two >= (TILE + 2R)^2 * SPP, tile kernel only).
  * Tunables: TILE (tile kernel: local size TILE x TILE; the pixel kernel's local size is a
  *   launch parameter only),
  *   TILE_MERGE (tile kernel): 0 = bitonic sort by all work-items (GPUs), 1 = one work-item
  *   merges the tile's per-pixel sorted runs through a winner tree (CPUs, where the items
  *   of a group run one after another anyway: ~5x fewer operations than the network).
  */
-#include "common.h"
+#include "sweep.h"
 #include "vec_hint.h"
 
-#ifndef SPP
-#define SPP 16
-#endif
-#ifndef SCALES
-#define SCALES 2
-#endif
-#ifndef EXPONENT
-#define EXPONENT 1.0f
-#endif
-#ifndef EXPONENT_ON
-#define EXPONENT_ON 0  // host sets 1 when EXPONENT != 1
-#endif
 #ifndef TILE
 #define TILE 4
-#endif
-
-#if SCALES == 2
-#define R 2
-#else
-#define R 3
 #endif
 #define WIN (2 * R + 1)
 #define TW (TILE + 2 * R)
@@ -64,7 +46,10 @@ typedef struct {
 
 /* half-open [-r, r): with positions clamped into [px, px+1) (sweep_prepare) a sample is in
  * exactly the blocks whose pixels it belongs to */
-inline float box(float x, float radius) { return (x >= -radius && x < radius) ? 0.5f / radius : 0.0f; }
+inline float box(float x, float radius)
+{
+    return (x >= -radius && x < radius) ? 0.5f / radius : 0.0f;
+}
 
 /* One step of the sweep for a sample at offset (x, y) from the pixel centre. */
 inline void sweep_step(sweep_state *st, float x, float y, float d, float3 c)

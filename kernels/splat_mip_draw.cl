@@ -1,18 +1,6 @@
-/* splat_mip.cl: method splat's mip plan (mip_radius set): every sample's PSF is drawn at the
- * pyramid level where it is small, after the samples that share a level pixel were merged, so
- * the cost per sample does not grow with the blur (clrecon/splat/mip.py).
+/* splat_mip_draw.cl: the draw and upsample passes of method splat's mip plan (splat_mip.h has
+ * the plan, its levels and the layout of bins and images).
  *
- * Levels l = 0 .. NLEV - 1, level pixel = s = 2^l x 2^l frame pixels; level l holds PSFs of
- * radius <= RL[l] and length <= ML[l] level pixels (RL[l] = R0 min(2^(l/2), 4), ML = 4 RL:
- * the coarse levels, whose bins are few, resolve their PSFs more finely). A sample with
- * r = |coc|, L = |motion| (the centre, layer and CoC as in splat.cl) goes to the lowest
- * level with r <= TR[l] = RL[l] 2^l and L <= TM[l] = ML[l] 2^l, at most NLEV - 1; there r / s
- * and L / s are clamped to RL and ML (the centre re-centred by the clamped blur, so the
- * sample stays inside the PSF that is drawn).
- *
- * splat_mip_bin_*: each sample adds into the bin of its layer, level and level pixel
- * q = floor(centre / s) (three float4: (rgb w, w), w (r/s, mx/s, my/s, 0), w (fx, fy, 0, 0),
- * w = 1 / SPP, (fx, fy) the centre's offset inside q).
  * splat_mip_draw_*: each non-empty bin draws one PSF of the bin's mean radius and motion at
  * its weighted centroid, normalised to unit sum, times (rgb w, w) of the bin, into the level
  * image: the disc (|m| < 1/2) clamp(rho + 1/2 - |d|, 0, 1), rho = max(r, 1/2) (below
@@ -23,53 +11,19 @@
  * splat_mip_upsample: level l's image, bilinearly, into level l - 1 (1/4 per child pixel),
  * from the top level down; level 0 is then what splat_composite reads.
  *
- * Layout: float4 images [level][layer][nh_l][nw_l], nw_l = ceil(W / 2^l) + 2 P_l,
- * nh_l = ceil(H / 2^l) + 2 P_l (P_l level pixels of pad on every side); bins the same with
- * three float4 per pixel. lv[l] = (first pixel of level l, nw_l, nh_l, P_l), P_l = 2 E_l,
- * E_l = ceil(RL + ML / 2) + 2 the level's reach: a centre lies within RL + ML / 2 level
- * pixels of its frame pixel and a PSF within E_l of its bin.
- * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, and the per-level lists TR, TM, RL, ML
- * (floats, NLEV each; TR[NLEV - 1], TM[NLEV - 1] unused).
+ *   splat_mip_draw_bins    one work-item per bin, atomic adds (any device)
+ *   splat_mip_draw_tiles   one work-item per owner tile of every level, k x k phases, plain
+ *                          adds in a fixed order (reproducible)
+ * Arguments: bins float (pixels, 12) from splat_mip_bin.cl (each drawn bin is zeroed: the
+ * next frame's bin pass needs no clear), img float4 (pixels) zeroed before the first draw,
+ * lv (int4 per level); the upsample's l (the level read, >= 1) and margin.
+ * Compile-time: NLAYERS (default in splat.h; the host builds both files of the plan with the
+ * bin pass's defines).
  */
-#include "common.h"
+#include "splat_mip.h"
 
-#ifndef SPP
-#define SPP 1
-#endif
-#ifndef HAS_MOTION
-#define HAS_MOTION 1
-#endif
-#ifndef NLAYERS
-#define NLAYERS 1
-#endif
-#ifndef NLEV
-#define NLEV 1
-#endif
-#ifndef TR
-#define TR 8.0f
-#define TM 32.0f
-#define RL 8.0f
-#define ML 32.0f
-#endif
-__constant float mip_tr[NLEV] = {TR};
-__constant float mip_tm[NLEV] = {TM};
-__constant float mip_rl[NLEV] = {RL};
-__constant float mip_ml[NLEV] = {ML};
-
-#define MISS_DEPTH 1e30f
-/* Every helper is always_inline: at their sizes PoCL's inliner keeps some as calls, and a
- * call stops the vectorisation of the work-item loop (the bin pass ran ~20x slower). */
-
-#define MIP_BIN_ARGS \
-    __global const float *color, __global const float *position, \
-    __global const float *depth, __global const float *lens, __global const float *time, \
-    __global const float *motion, const float c0, const float c1, const float inv_far, \
-    const float layer_scale, __global const int4 *lv, __global float *bins
-
-#define MIP_BIN_PASS color, position, depth, lens, time, motion, c0, c1, inv_far, \
-    layer_scale, lv, bins
-
-__attribute__((always_inline)) inline void mip_add4(__global float *dst, const float4 v, const int atomic)
+__attribute__((always_inline)) inline void mip_add4(__global float *dst, const float4 v,
+                                                    const int atomic)
 {
     if (atomic) {
         if (v.x != 0.0f) atomic_add_f32(dst + 0, v.x);
@@ -81,162 +35,10 @@ __attribute__((always_inline)) inline void mip_add4(__global float *dst, const f
     }
 }
 
-/* pixel index of level pixel (qx, qy) (unpadded) of `layer` at level `l` */
-__attribute__((always_inline)) inline size_t mip_index(__global const int4 *lv, const int l, const int layer, const int qx,
-                        const int qy)
-{
-    const int4 g = lv[l];
-    return (size_t)g.x + ((size_t)layer * g.z + (size_t)(qy + g.w)) * g.y + (size_t)(qx + g.w);
-}
-
-/* Sample k's bin (its pixel index, -1: none) and what it adds there: r0..r8 = w (r, g, b, 1,
- * r / s, mx / s, my / s, fx, fy), w = 1 / SPP, (fx, fy) the centre's offset inside its bin.
- * Nine scalars (no private array), so that they stay in registers. */
-#define MIP_REC float *r0, float *r1, float *r2, float *r3, float *r4, float *r5, float *r6, \
-    float *r7, float *r8
-#define MIP_REC_VARS float v0, v1, v2, v3, v4, v5, v6, v7, v8
-#define MIP_REC_PASS &v0, &v1, &v2, &v3, &v4, &v5, &v6, &v7, &v8
-__attribute__((always_inline)) inline int mip_record(const int k, MIP_BIN_ARGS, MIP_REC)
-{
-    const float z = depth[k];
-    const int miss = z >= MISS_DEPTH;
-    const float coc = miss ? c1 : c0 / z + c1;
-    const float r = fabs(coc);
-    float mx = 0.0f, my = 0.0f;
-#if HAS_MOTION
-    mx = motion[2 * k];
-    my = motion[2 * k + 1];
-#endif
-    const float len = sqrt(mx * mx + my * my);
-    /* the lowest level that holds the PSF (the thresholds increase: a count) */
-    int l = 0;
-    float rl = mip_rl[0], ml = mip_ml[0];
-    for (int j = 0; j + 1 < NLEV; ++j) {
-        const int up = r > mip_tr[j] || len > mip_tm[j];
-        l += up;
-        rl = up ? mip_rl[j + 1] : rl;
-        ml = up ? mip_ml[j + 1] : ml;
-    }
-    const float s = (float)(1 << l), inv_s = 1.0f / s;
-    /* beyond the top level: the largest PSF the level holds, re-centred by it */
-    const float cs = r * inv_s > rl ? rl * s / r : 1.0f;
-    const float ms = len * inv_s > ml ? ml * s / len : 1.0f;
-    const float cc = coc * cs;
-    float cx = position[2 * k] - cc * lens[2 * k];
-    float cy = position[2 * k + 1] - cc * lens[2 * k + 1];
-#if HAS_MOTION
-    const float dt = (time[k] - 0.5f) * ms;
-    cx -= dt * mx;
-    cy -= dt * my;
-#endif
-    const float inv = miss ? 0.0f : 1.0f / z;
-    const int layer = clamp((int)floor((inv - inv_far) * layer_scale), 0, NLAYERS - 1);
-    cx *= inv_s;
-    cy *= inv_s;
-    const float fx = floor(cx), fy = floor(cy);
-    const int4 g = lv[l];
-    const int qx = (int)fx, qy = (int)fy;
-    /* centres beyond the pad cannot reach the frame (the host sizes P_l so that none of a
-     * valid frame's are); no early return: straight-line code vectorises */
-    const int e = g.w / 2;  /* the level's reach */
-    const int out = qx < e - g.w || qy < e - g.w || qx >= g.y - g.w - e
-                    || qy >= g.z - g.w - e;
-    const float w = 1.0f / (float)SPP, wm = w * ms * inv_s;
-    *r0 = color[3 * k] * w;
-    *r1 = color[3 * k + 1] * w;
-    *r2 = color[3 * k + 2] * w;
-    *r3 = w;
-    *r4 = r * cs * inv_s * w;
-    *r5 = mx * wm;
-    *r6 = my * wm;
-    *r7 = (cx - fx) * w;
-    *r8 = (cy - fy) * w;
-    return out ? -1 : (int)mip_index(lv, l, layer, qx, qy);
-}
-
-/* A record into bin idx: three float4 (rgb w, w), w (r, mx, my, 0) / s, w (fx, fy, 0, 0) */
-__attribute__((always_inline)) inline void mip_add1(__global float *dst, const float v, const int atomic)
-{
-    if (!atomic)
-        *dst += v;
-    else if (v != 0.0f)
-        atomic_add_f32(dst, v);
-}
-
-__attribute__((always_inline)) inline void mip_bin_add(__global float *bins, const int idx, const float v0, const float v1,
-                        const float v2, const float v3, const float v4, const float v5,
-                        const float v6, const float v7, const float v8, const int atomic)
-{
-    __global float *b = bins + (size_t)idx * 12;
-    mip_add1(b + 0, v0, atomic);
-    mip_add1(b + 1, v1, atomic);
-    mip_add1(b + 2, v2, atomic);
-    mip_add1(b + 3, v3, atomic);
-    mip_add1(b + 4, v4, atomic);
-    mip_add1(b + 5, v5, atomic);
-    mip_add1(b + 6, v6, atomic);
-    mip_add1(b + 8, v7, atomic);
-    mip_add1(b + 9, v8, atomic);
-}
-
-/* One work-item per sample, atomic adds (any device). */
-__kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
-{
-    const int k = get_global_id(0);
-    if (k >= nsamples)
-        return;
-    MIP_REC_VARS;
-    const int idx = mip_record(k, MIP_BIN_PASS, MIP_REC_PASS);
-    if (idx >= 0)
-        mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
-}
-
-#define ROW_MAX 512
-/* One work-item (and work-group) per owner tile of tile x tile frame pixels: the
- * host launches the k x k phases in turn with (k - 1) tile > 2 R - 1, R bounding how
- * far from its pixel a sample's bin lies (frame pixels), so no two work-items of a launch
- * write the same bin. Along each row of its tile, ROW_MAX samples at a time: the records
- * go into local memory in one loop over contiguous samples, which the compiler vectorises
- * (the same arithmetic interleaved with the adds ran ~10x slower on PoCL), then are added
- * in order: plain adds, a fixed order (reproducible). */
-__kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int height,
-                                  const int tile, const int k, const int phase_x,
-                                  const int phase_y)
-{
-    __local int ridx[ROW_MAX];
-    __local float r0[ROW_MAX], r1[ROW_MAX], r2[ROW_MAX], r3[ROW_MAX], r4[ROW_MAX],
-        r5[ROW_MAX], r6[ROW_MAX], r7[ROW_MAX], r8[ROW_MAX];
-    const int x0 = (k * (int)get_group_id(0) + phase_x) * tile;
-    const int y0 = (k * (int)get_group_id(1) + phase_y) * tile;
-    if (x0 >= width || y0 >= height)
-        return;
-    const int row = (min(x0 + tile, width) - x0) * SPP;
-    for (int y = y0; y < min(y0 + tile, height); ++y)
-        for (int c = 0; c < row; c += ROW_MAX) {
-            const int first = (y * width + x0) * SPP + c, n = min(ROW_MAX, row - c);
-            for (int j = 0; j < n; ++j) {
-                MIP_REC_VARS;
-                ridx[j] = mip_record(first + j, MIP_BIN_PASS, MIP_REC_PASS);
-                r0[j] = v0;
-                r1[j] = v1;
-                r2[j] = v2;
-                r3[j] = v3;
-                r4[j] = v4;
-                r5[j] = v5;
-                r6[j] = v6;
-                r7[j] = v7;
-                r8[j] = v8;
-            }
-            for (int j = 0; j < n; ++j)
-                if (ridx[j] >= 0)
-                    mip_bin_add(bins, ridx[j], r0[j], r1[j], r2[j], r3[j], r4[j], r5[j],
-                                r6[j], r7[j], r8[j], 0);
-        }
-}
-
 /* The unnormalised PSF at offset d (level pixels) from its centre: the antialiased disc of
  * radius rho, or (len >= 1/2) that disc swept along len u, u a unit vector. */
-__attribute__((always_inline)) inline float mip_psf(const float2 d, const float rho, const float len, const float2 u)
+__attribute__((always_inline)) inline float mip_psf(const float2 d, const float rho,
+                                                    const float len, const float2 u)
 {
     if (len < 0.5f) {
         if (rho >= 1.5f)
@@ -271,8 +73,9 @@ typedef struct {
 /* The PSF of bin (qx, qy) of `layer` at level l; 0 for an empty bin. A point (r, |m| < 1/2)
  * is the bin's pixel itself; sum is the PSF's analytic sum, or 0 where the pixels must be
  * summed (small radii). */
-__attribute__((always_inline)) inline int mip_params(const int l, const int layer, const int qx, const int qy,
-                      __global float *bins, __global const int4 *lv, mip_psf_t *p)
+__attribute__((always_inline)) inline int mip_params(const int l, const int layer, const int qx,
+                                                     const int qy, __global float *bins,
+                                                     __global const int4 *lv, mip_psf_t *p)
 {
     p->bi = mip_index(lv, l, layer, qx, qy);
     p->b0 = vload4(0, bins + p->bi * 12);
@@ -299,7 +102,7 @@ __attribute__((always_inline)) inline int mip_params(const int l, const int laye
     p->y1 = min((int)floor(p->c.y + e.y), qy + reach);
     /* the plane integral of mip_psf (the disc pi (rho^2 + 1/12), the swept disc
      * 2 len pi (rho^2 + 1/16)), which the pixel sum matches to ~1% from rho = 3 (disc) and
-     * rho = 4 (swept) on (tests/test_splat_mip.py); below, the pixels are summed. (An
+     * rho = 4 (swept) on (tests/passes/test_splat_mip.py); below, the pixels are summed. (An
      * energy error cancels in the layer's colour, rgb / coverage.) */
     const float r2 = p->rho * p->rho;
     p->sum = p->len < 0.5f ? (p->rho >= 3.0f ? M_PI_F * (r2 + (1.0f / 12.0f)) : 0.0f)
