@@ -31,7 +31,11 @@ from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from clrecon.api import METHODS, run
+from clrecon.core.device import get_device
 from clrecon.core.fsutil import write_atomic
+from clrecon.io import load_image, load_samples, save_image
+from clrecon.metrics import evaluate
 
 SAMPLE_EXTENSIONS = (".bin", ".txt", ".exr", ".npz")
 
@@ -91,10 +95,6 @@ def make_jobs(inputs: Iterable[str], outdir: str, png: bool = False,
 
 def run_frame(job: Job, method: str, knobs: dict, device=None) -> dict:
     """Reconstruct one job and write its images; the record of :func:`batch`'s summary."""
-    from clrecon.core.pipeline import run
-    from clrecon.io import load_image, load_samples, save_image
-    from clrecon.metrics import evaluate
-
     t0 = time.perf_counter()
     rec = {"frame": job.name, "input": job.input, "output": job.output, "png": job.png}
     try:
@@ -179,10 +179,7 @@ def batch(inputs: Iterable[str], outdir: str, method: str = "box", knobs: dict |
     ``Device`` objects; default: the default device). ``workers``/``scheduler``: run on Dask
     instead. ``progress(record)`` is called once per finished frame.
     """
-    from clrecon.core.pipeline import METHODS, _load_methods
-
     knobs = dict(knobs or {})
-    _load_methods()
     if method not in METHODS:
         raise ValueError(f"--method: unknown {method!r}; available: {sorted(METHODS)}")
     if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
@@ -196,8 +193,6 @@ def batch(inputs: Iterable[str], outdir: str, method: str = "box", knobs: dict |
     if scheduler is not None or workers is not None:
         records = _run_dask(todo, method, knobs, scheduler, workers, progress)
     else:
-        from clrecon.core.device import get_device
-
         devs = [get_device(d) for d in (devices or [None])]
         records = _run_local(todo, method, knobs, devs, progress)
     previous = _previous_records(Path(outdir) / "summary.json")

@@ -1,5 +1,6 @@
-"""What every method shares: device-side sample buffers, the pass/pipeline protocol, the
-method registry and the one entry point :func:`reconstruct`.
+"""What every method shares: device-side sample buffers, the pass/pipeline protocol and the
+method registry (the entry points :func:`~clrecon.api.make_pipeline`, :func:`~clrecon.api.run`
+and :func:`~clrecon.api.reconstruct` are in :mod:`clrecon.api`).
 
 A *pass* builds its program once in its constructor and its ``__call__(queue, ...,
 wait_for=None)`` only sets arguments and enqueues, returning a ``cl.Event``. A *pipeline* (a
@@ -12,70 +13,17 @@ from __future__ import annotations
 
 import inspect
 import os
-import threading
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, ClassVar
 
 import numpy as np
 import pyopencl as cl
 
-from clrecon.core.device import Device, DeviceSpec, event_ms, get_device
+from clrecon.core.device import event_ms
 from clrecon.core.errors import DeviceMemoryError
-from clrecon.core.plan import BOX_PLAN, Plan, covering
+from clrecon.core.inspect import inspect_device
+from clrecon.core.plan import Plan, covering
 from clrecon.core.samples import FIELDS, FrameInfo, SampleBuffer
-
-
-@dataclass(frozen=True)
-class LocalSize:
-    """A pass's launch configuration: local size, or ``None`` for "runtime chooses".
-
-    ``x`` and ``y`` are positive integers (``bool`` and ``float`` refused; NumPy integers
-    are stored as ``int``), ``x`` may be ``None`` (then ``y`` is unused). Values beyond a
-    device's limits are refused by :meth:`check` when a pass is built for that device.
-    """
-
-    x: int | None = 16
-    y: int = 4
-
-    def __post_init__(self):
-        from clrecon.core.knobs import INT32_MAX, check_int
-
-        if self.x is not None:
-            object.__setattr__(self, "x", check_int("LocalSize.x", self.x, 1, INT32_MAX))
-        object.__setattr__(self, "y", check_int("LocalSize.y", self.y, 1, INT32_MAX))
-
-    def check(self, device: cl.Device, pass_name: str, kernel: cl.Kernel | None = None
-              ) -> None:
-        """Refuse, with a ``ValueError`` naming the pass, the size and the limit, a local size
-        the device cannot launch: beyond its max work-item sizes, its max work-group size
-        or (given the built ``kernel``) the kernel's own work-group limit."""
-        if self.x is None:
-            return
-        x, y = self.x, self.y
-        dev = device.name.strip()
-        items = tuple(device.max_work_item_sizes)
-        for axis, v, lim in (("x", x, items[0]), ("y", y, items[1] if len(items) > 1 else 1)):
-            if v > lim:
-                raise ValueError(f"{pass_name}: local size {x}x{y}: {axis} = {v} exceeds the "
-                                 f"device's max work-item size {lim} in {axis} ({dev}; "
-                                 f"max work-item sizes {list(items)})")
-        limit, what = device.max_work_group_size, "the device's max work-group size"
-        if kernel is not None:
-            limit = min(limit, kernel.get_work_group_info(
-                cl.kernel_work_group_info.WORK_GROUP_SIZE, device))
-            what = "the max work-group size of the built kernel"
-        if x * y > limit:
-            raise ValueError(f"{pass_name}: local size {x}x{y} = {x * y} work-items exceeds "
-                             f"{what}, {limit} ({dev})")
-
-    def for_range(self, width: int, height: int) -> tuple[tuple[int, int], tuple | None]:
-        """(global, local) for a 2D range covering ``width x height``."""
-        if self.x is None:
-            return (width, height), None
-        gx = -(-width // self.x) * self.x
-        gy = -(-height // self.y) * self.y
-        return (gx, gy), (self.x, self.y)
 
 
 @dataclass(eq=False)
@@ -170,8 +118,6 @@ class DeviceSamples:
         ``allow_negative`` accepts negative colours (as ``SampleBuffer.validate``); a
         pipeline called without ``info`` validates with the default, so a frame with
         negative radiance is inspected here first."""
-        from clrecon.core.inspect import inspect_device
-
         self.info = inspect_device(queue, self.buffers, self.height, self.width, self.spp,
                                    self.coc, validate=validate, wait_for=wait_for,
                                    allow_negative=allow_negative)
@@ -392,65 +338,9 @@ def register(cls):
     return cls
 
 
-def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool = False,
-                  safeguard: bool | None = None, estimate_error: bool = False,
-                  **knobs) -> Pipeline:
-    """Plan ``method`` for frames like ``info`` on ``context``.
-
-    ``info`` may describe a family rather than one frame: a renderer that knows its largest
-    CoC and motion plans once for them (``dataclasses.replace(info, max_abs_coc=...)``).
-    ``grow=True`` re-plans (kernels come from the build cache) when a frame falls outside the
-    bounds instead of refusing it. Unknown knobs raise ``TypeError``.
-
-    ``safeguard`` (default: on for every method but ``box`` at 2 spp or more) blends the
-    method's image toward box wherever its estimated bias dominates
-    (:mod:`clrecon.methods.safeguard`);
-    ``safeguard=False`` is the papers' method alone. ``estimate_error=True`` also computes the
-    per-pixel squared-error estimate, the temporary ``"error"`` (needs 2 spp or more).
-    """
-    from clrecon.core.knobs import check_bool
-
-    safeguard = check_bool("safeguard", safeguard, none_ok=True)
-    estimate_error = check_bool("estimate_error", estimate_error)
-    inner = _make_one(method, context, info, **knobs)
-    if safeguard is None:
-        safeguard = method != "box" and info.spp >= 2
-    if safeguard and method == "box":
-        raise ValueError("safeguard: box is the unbiased estimate the safeguard blends "
-                         "toward; it has nothing to safeguard")
-    if safeguard and info.spp < 2:
-        raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent halves), "
-                         f"the frame has {info.spp}; pass safeguard=False")
-    if estimate_error and info.spp < 2:
-        raise ValueError(f"estimate_error: needs >= 2 samples per pixel (two independent "
-                         f"halves), the frame has {info.spp}")
-    # a frame without blur is planned as box, with nothing to blend: the method's own
-    # pipeline, unless it may grow into a blurred frame (the wrapper re-plans both)
-    if estimate_error or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
-        from clrecon.methods.safeguard import Safeguarded
-
-        pipe = Safeguarded(context, info, method, knobs, blend=bool(safeguard), full=inner)
-    else:
-        pipe = inner
-    pipe.grow, pipe.knobs = bool(grow), dict(knobs)
-    return pipe
-
-
-#: knobs every method takes through :func:`make_pipeline` (beside its class's own)
-PIPELINE_KNOBS = ("safeguard", "estimate_error")
-
-
-def method_knobs(method: str) -> set[str]:
-    """The knob names ``method`` takes (its class's and :data:`PIPELINE_KNOBS`)."""
-    _load_methods()
-    cls = METHODS[method]
-    return (set(inspect.signature(cls.__init__).parameters) - {"self", "context", "info"}
-            | set(PIPELINE_KNOBS))
-
-
-def _make_one(method: str, context: cl.Context, info: FrameInfo, **knobs) -> Pipeline:
-    """One method's own pipeline (no safeguard)."""
-    _load_methods()
+def make_method(method: str, context: cl.Context, info: FrameInfo, **knobs) -> Pipeline:
+    """One method's own pipeline (no safeguard), from the registry :data:`METHODS`
+    (filled by importing :mod:`clrecon.methods`: ``import clrecon`` does)."""
     try:
         cls = METHODS[method]
     except KeyError:
@@ -467,177 +357,3 @@ def _make_one(method: str, context: cl.Context, info: FrameInfo, **knobs) -> Pip
     pipe = cls(context, info, **knobs)
     pipe.grow, pipe.knobs = False, dict(knobs)
     return pipe
-
-
-def _load_methods() -> None:
-    from clrecon.methods import box, layered, splat, sweep  # noqa: F401  (they register themselves)
-
-
-@dataclass
-class Reconstruction:
-    """An image with what produced it and how long each part took.
-
-    ``pass_ms`` are device times of the plan's passes; ``upload_ms`` the host-to-device copy
-    (wall); ``inspect_ms`` the device validation and inspection (wall: it reads a few bytes
-    back); ``plan_ms`` planning (wall, 0 when the cached plan held; a first call of a process
-    also compiles here); ``total_ms`` the wall time of the whole call.
-    """
-
-    image: np.ndarray
-    method: dict
-    device: str
-    pass_ms: dict[str, float] = field(default_factory=dict)
-    upload_ms: float = 0.0
-    total_ms: float = 0.0
-    inspect_ms: float = 0.0
-    plan_ms: float = 0.0
-    #: with ``estimate_error=True``: (H, W) float32 estimated squared error of ``image``
-    error: np.ndarray | None = None
-
-    @property
-    def device_ms(self) -> float:
-        return float(sum(self.pass_ms.values()))
-
-
-@dataclass(eq=False)
-class _Session:
-    """What :func:`run` keeps between frames of one method on one device."""
-
-    pipe: Pipeline
-    samples: DeviceSamples
-    out: cl.Buffer
-
-
-#: (context, method, knobs) -> session, most recent last; at most _MAX_SESSIONS
-_sessions: dict[tuple, _Session] = {}
-_MAX_SESSIONS = 4
-_sessions_lock = threading.Lock()
-
-
-def clear_sessions() -> None:
-    """Release the device buffers :func:`run` keeps for the next frame."""
-    _sessions.clear()
-
-
-def _knob_key(knobs: dict) -> tuple:
-    try:
-        key = tuple(sorted(knobs.items()))
-        hash(key)
-        return key
-    except TypeError:  # an unhashable knob value: no reuse, still correct
-        return (object(),)
-
-
-def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = None,
-        allow_negative: bool = False, estimate_error: bool = False,
-        **knobs) -> Reconstruction:
-    """Upload, validate and inspect on the device, plan, reconstruct and read back.
-
-    Frame after frame of one method and device, the device buffers are reused and the plan
-    too while the frame's description is unchanged; any other frame is planned afresh
-    (kernels come from the build cache), so the image is always that of a plan made for this
-    frame. Invalid samples raise the ``ValueError`` of
-    :meth:`SampleBuffer.validate(allow_negative) <SampleBuffer.validate>`.
-
-    With ``allow_negative`` negative radiance is accepted and every method gives the linear
-    combination ``f(c+) - f(c-)`` of its images of the positive and negative parts: box,
-    sweep and layered are linear in the colour (one run); a pipeline whose class sets
-    ``color_linear = False`` (splat: its composite clamps each layer's colour at 0 against
-    the integration's ringing) runs twice on a frame with negative colours, once per part,
-    and the image is the difference (``pass_ms`` sums both runs).
-
-    ``estimate_error=True`` also returns ``error``: the (H, W) float32 estimate of the
-    squared error of ``image`` (linear radiance, mean over RGB) from independent halves of
-    the samples (:mod:`clrecon.methods.safeguard`), for every method, box included.
-    """
-    from clrecon.core.knobs import check_bool
-
-    estimate_error = check_bool("estimate_error", estimate_error)
-    if not isinstance(buf, SampleBuffer):
-        raise TypeError(f"buf must be a SampleBuffer, got {type(buf).__name__}")
-    buf.check_layout()
-    dev = get_device(device)
-    t0 = time.perf_counter()
-    # tuning overrides from the environment decide launch configurations too
-    tune_env = tuple(sorted((k, v) for k, v in os.environ.items()
-                            if k.startswith("CLRECON_TUNE_")))
-    key = (dev.context.int_ptr, method, _knob_key(knobs), estimate_error, tune_env)
-    with _sessions_lock:  # batch runs one thread per device
-        sess = _sessions.pop(key, None)
-    samples = DeviceSamples.upload(dev.queue, buf, FIELDS,
-                                   into=None if sess is None else sess.samples)
-    t1 = time.perf_counter()
-    info = samples.inspect(dev.queue, allow_negative=allow_negative)
-    t2 = time.perf_counter()
-    if sess is not None and sess.pipe.info == info:
-        pipe, plan_ms = sess.pipe, 0.0
-    else:
-        pipe = make_pipeline(method, dev.context, info, estimate_error=estimate_error, **knobs)
-        plan_ms = (time.perf_counter() - t2) * 1e3
-    nbytes = buf.height * buf.width * 12
-    out = sess.out if sess is not None and sess.out.size == nbytes else cl.Buffer(
-        dev.context, cl.mem_flags.READ_WRITE, size=nbytes)
-    split = (allow_negative and not getattr(pipe, "color_linear", True)
-             and bool(buf.color.min() < 0))
-    if split:  # the positive part first, then the negative one into the same buffer
-        cl.enqueue_copy(dev.queue, samples["color"], np.maximum(buf.color, 0),
-                        is_blocking=True)
-    ev = pipe(dev.queue, samples, out)
-    image = np.empty((buf.height, buf.width, 3), np.float32)
-    cl.enqueue_copy(dev.queue, image, out, wait_for=[ev])
-    error = _read_error(dev.queue, pipe, image.shape[:2]) if estimate_error else None
-    pass_ms = pipe.pass_times_ms()
-    if split:
-        cl.enqueue_copy(dev.queue, samples["color"], np.maximum(-buf.color, 0),
-                        is_blocking=True)
-        ev = pipe(dev.queue, samples, out)
-        negative = np.empty_like(image)
-        cl.enqueue_copy(dev.queue, negative, out, wait_for=[ev])
-        image -= negative
-        if error is not None:  # the parts' errors add (independent estimates)
-            error += _read_error(dev.queue, pipe, image.shape[:2])
-        for name, ms in pipe.pass_times_ms().items():
-            pass_ms[name] = pass_ms.get(name, 0.0) + ms
-    t3 = time.perf_counter()
-    with _sessions_lock:
-        _sessions[key] = _Session(pipe, samples, out)
-        while len(_sessions) > _MAX_SESSIONS:
-            _sessions.pop(next(iter(_sessions)))
-    return Reconstruction(
-        image=image,
-        method=pipe.describe(),
-        device=dev.info.label,
-        pass_ms=pass_ms,
-        upload_ms=(t1 - t0) * 1e3,
-        total_ms=(t3 - t0) * 1e3,
-        inspect_ms=(t2 - t1) * 1e3,
-        plan_ms=plan_ms,
-        error=error,
-    )
-
-
-def _read_error(queue, pipe: Pipeline, shape) -> np.ndarray:
-    err = np.empty(shape, np.float32)
-    cl.enqueue_copy(queue, err, pipe.buffers["error"])
-    return err
-
-
-def reconstruct(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = None,
-                allow_negative: bool = False, **knobs) -> np.ndarray:
-    """Reconstruct a frame: the (H, W, 3) float32 linear image.
-
-    Parameters
-    ----------
-    buf : SampleBuffer
-        The frame's samples (validated here).
-    method : str
-        ``"box"`` (more as methods land: see ``clrecon.core.pipeline.METHODS``).
-    device : int, str, Device or None
-        See :func:`clrecon.core.device.get_device`.
-    allow_negative : bool
-        Accept negative colours (validation refuses them by default); every method then
-        gives ``f(c+) - f(c-)``, linear in the colour (see :func:`run`).
-    **knobs
-        Method-specific settings; unknown names raise ``TypeError``.
-    """
-    return run(buf, method, device, allow_negative, **knobs).image

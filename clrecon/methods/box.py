@@ -6,14 +6,19 @@ import pyopencl as cl
 
 from clrecon.core.device import get_kernel
 from clrecon.core.knobs import KnobTypeError
-from clrecon.core.pipeline import LocalSize, Pipeline, register
+from clrecon.core.local_size import LocalSize
+from clrecon.core.pipeline import Pipeline, register
 from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
+from clrecon.tune.local import local_size_of
+from clrecon.tune.runtime import tuned
+from clrecon.tune.tunable import DEFAULT_LOCAL, GPU_LOCAL, Tunable, local_candidates
 
 
 class Box:
     """Pass ``box``: ``kernels/box.cl`` / ``box_average``."""
 
     name = "box"
+    TUNABLE = Tunable(name, "box", DEFAULT_LOCAL, local_candidates, gpu=GPU_LOCAL)
 
     def __init__(self, context: cl.Context, local: LocalSize | None = None):
         self.local = check_local("local", local) or LocalSize(16, 4)
@@ -69,10 +74,7 @@ class BoxPipeline(Pipeline):
         super().__init__(context, info)
         self.tuning = {}
         if local is None:
-            from clrecon.tune.runtime import tuned
-            from clrecon.tune.specs import local_size_of
-
-            found = tuned(context, "box", info)
+            found = tuned(context, Box.TUNABLE, info)
             local = local_size_of(found.config)
             self.tuning["box"] = found.source
         else:

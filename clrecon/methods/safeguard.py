@@ -54,7 +54,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import get_kernel
-from clrecon.core.pipeline import DeviceSamples, Pipeline
+from clrecon.core.pipeline import DeviceSamples, Pipeline, make_method
 from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
 
@@ -168,8 +168,6 @@ class Safeguarded(Pipeline):
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
                  full: Pipeline | None = None):
-        from clrecon.core.pipeline import _make_one as make_pipeline
-
         if info.spp < 2:
             raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent "
                              f"halves), the frame has {info.spp}")
@@ -177,7 +175,7 @@ class Safeguarded(Pipeline):
         self.name = method
         self.inner_method, self.inner_knobs, self.blend = method, dict(knobs), bool(blend)
         self.passes = SafeguardPasses(context)
-        self.full = full if full is not None else make_pipeline(method, context, info, **knobs)
+        self.full = full if full is not None else make_method(method, context, info, **knobs)
         # a plan that is the per-pixel average (a frame without blur) is box: its error is
         # box's variance, and there is nothing to blend
         is_box = method == "box" or self.full.plan.name == BOX_PLAN
@@ -185,8 +183,8 @@ class Safeguarded(Pipeline):
         ha, hb = halves(info.spp)
         self.half_a = self.half_b = None
         if not is_box:
-            self.half_a = make_pipeline(method, context, replace(info, spp=ha), **knobs)
-            self.half_b = self.half_a if hb == ha else make_pipeline(
+            self.half_a = make_method(method, context, replace(info, spp=ha), **knobs)
+            self.half_b = self.half_a if hb == ha else make_method(
                 method, context, replace(info, spp=hb), **knobs)
         npx = info.width * info.height
         inner_fields = tuple(f for f in FIELDS if f in set(self.full.plan.fields) | {"color"})

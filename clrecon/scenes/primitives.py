@@ -59,27 +59,28 @@ class Sphere:
 
 
 @dataclass(frozen=True)
-class Quad:
-    """A rectangle of half extents ``half`` in its local (e0, e1) plane, normal e2.
-
-    With no rotation it faces the camera (normal along z)."""
+class _Extended:
+    """The fields a quad and a box share: ``half`` holds their half extents (two for a quad,
+    three for a box), ``rotate`` their orientation."""
 
     centre: Vec3
-    half: tuple[float, float]
+    half: tuple[float, ...]
     material: Material = field(default_factory=Material)
     velocity: Vec3 = (0.0, 0.0, 0.0)
     rotate: Vec3 = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
-class Box:
-    """An oriented box (axis aligned when ``rotate`` is zero) of half extents ``half``."""
+class Quad(_Extended):
+    """A rectangle of half extents ``half = (h0, h1)`` in its local (e0, e1) plane, normal e2.
 
-    centre: Vec3
-    half: Vec3
-    material: Material = field(default_factory=Material)
-    velocity: Vec3 = (0.0, 0.0, 0.0)
-    rotate: Vec3 = (0.0, 0.0, 0.0)
+    With no rotation it faces the camera (normal along z)."""
+
+
+@dataclass(frozen=True)
+class Box(_Extended):
+    """An oriented box (axis aligned when ``rotate`` is zero) of half extents ``half``
+    (three values)."""
 
 
 @dataclass(frozen=True)

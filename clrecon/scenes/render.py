@@ -11,8 +11,11 @@ import pyopencl as cl
 
 from clrecon.core.device import Device, DeviceSpec, get_kernel, trusted_device
 from clrecon.core.device import get_device as _get_device
-from clrecon.core.samples import SampleBuffer
+from clrecon.core.samples import FrameInfo, SampleBuffer
 from clrecon.scenes.primitives import Scene
+from clrecon.tune.local import local_size_of
+from clrecon.tune.runtime import tuned
+from clrecon.tune.tunable import Tunable, local_candidates
 
 Progress = Optional[Callable[[int, int], None]]
 
@@ -21,15 +24,15 @@ CHUNK_SAMPLES = 1 << 22
 #: samples per pixel per launch of the reference kernel
 REFERENCE_CHUNK = 32
 
+#: the scene generator's kernel as a tunable pass (no pass class of its own: a module
+#: constant): the same search as the per-pixel passes, default the 8x8 it was written for
+RAYTRACE = Tunable("raytrace", "raytrace", {"wg_x": 8, "wg_y": 8}, local_candidates)
+
 
 def _local_size(context: cl.Context, width: int, height: int, spp: int):
     """The tuned local size of pass ``raytrace`` (see clrecon.tune) for this frame shape."""
-    from clrecon.core.samples import FrameInfo
-    from clrecon.tune.runtime import tuned
-    from clrecon.tune.specs import local_size_of
-
     info = FrameInfo(width, height, spp, 0.0, 0.0, 0.0, 0.0, 0.0)
-    return local_size_of(tuned(context, "raytrace", info).config)
+    return local_size_of(tuned(context, RAYTRACE, info).config)
 
 
 def _check_size(width: int, height: int, spp: int) -> None:

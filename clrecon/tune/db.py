@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Union
 
 from clrecon.core.fsutil import write_atomic
+from clrecon.core.resources import tuning_dir
 from clrecon.tune.tuner import Config, TuneResult
 
 if TYPE_CHECKING:  # no OpenCL import at run time: this module is pure logic
@@ -95,8 +96,6 @@ def env_var(pass_name: str) -> str:
 
 def _root(root: PathLike | None) -> Path:
     if root is None:
-        from clrecon.core.resources import tuning_dir
-
         return tuning_dir()
     return Path(root)
 

@@ -1,16 +1,19 @@
 """Run-time side of tuning: which configuration a pass uses on this device for this frame.
 
-``tuned(context, pass_name, info)`` walks the fallback chain of :func:`clrecon.tune.db.lookup`
+``tuned(context, tunable, info)`` walks the fallback chain of :func:`clrecon.tune.db.lookup`
 (env override, exact device with the same kernel hash, same vendor and type, the default of
-the pass's spec for the device's type, runtime chooses) once per device, pass, bucket and
-kernel hash per process. The spec's defaults are shaped for CPUs (one to eight work-items
-a group in places); a GPU gets the spec's GPU default instead (:func:`default_config`).
-Whatever the chain finds, except an environment override (the caller's explicit choice,
-refused by the pass if the device cannot launch it), is fitted to the device's maximum
+the pass's declaration (:class:`~clrecon.tune.tunable.Tunable`) for the device's type,
+runtime chooses) once per device, pass, bucket and kernel hash per process. The declared
+defaults are shaped for CPUs (one to eight work-items a group in places); a GPU gets the
+declared GPU default instead (:func:`default_config`). Whatever the chain finds, except an
+environment or API override (the caller's explicit choice, refused by the pass if the
+device cannot launch it), is fitted to the device's maximum
 work-group size (:func:`fit_config`): an entry of another device of the same vendor may
 have tuned a larger group than this one takes. Local memory depends on knobs the lookup
 does not see (spp, scales): the passes that use it fit their configuration themselves and
 check the built kernel with :func:`check_kernel_fits`.
+
+The lookup imports the declarations' module and the database only: no pass, no runner.
 """
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ import pyopencl as cl
 from clrecon.core.device import describe, source_hash
 from clrecon.core.samples import FrameInfo
 from clrecon.tune.db import Lookup, bucket_for, lookup
-from clrecon.tune.specs import DEFAULTS, GPU_DEFAULTS, SPECS
+from clrecon.tune.tunable import PASS_NAMES, Tunable
 
 if TYPE_CHECKING:
     from clrecon.core.device import DeviceInfo
@@ -36,6 +39,16 @@ _cache: dict[tuple, Lookup] = {}
 _override: contextvars.ContextVar = contextvars.ContextVar("clrecon_tuning", default=None)
 
 Override = Union[str, Mapping[str, Union[dict, None]]]
+
+
+def override_key() -> object:
+    """A hashable form of the override in force (``None`` outside :func:`override_tuning`):
+    what a cache of pipelines built under it must key on (:func:`clrecon.api.run` does)."""
+    value = _override.get()
+    if isinstance(value, dict):
+        return tuple(sorted((k, None if v is None else tuple(sorted(v.items())))
+                            for k, v in value.items()))
+    return value
 
 
 @contextlib.contextmanager
@@ -49,7 +62,9 @@ def override_tuning(override: Override) -> Iterator[None]:
     that configuration (``None``: the runtime chooses), source ``"override"``, and the
     pass refuses one the device cannot launch, as it does an environment override; passes
     not named take the usual chain. The environment override ``CLRECON_TUNE_<PASS>`` is
-    the same thing for a whole process; this one wins over it inside the block."""
+    the same thing for a whole process; this one wins over it inside the block. Pass names
+    are checked against :data:`~clrecon.tune.tunable.PASS_NAMES` (known before any method
+    is imported); an unknown one raises ``ValueError``."""
     if isinstance(override, str):
         if override != "default":
             raise ValueError(f"override_tuning: expected 'default' or a mapping of pass "
@@ -58,9 +73,9 @@ def override_tuning(override: Override) -> Iterator[None]:
     elif isinstance(override, Mapping):
         value = {}
         for name, cfg in override.items():
-            if name not in SPECS:
+            if name not in PASS_NAMES:
                 raise ValueError(f"override_tuning: unknown pass {name!r} (passes: "
-                                 f"{', '.join(sorted(SPECS))})")
+                                 f"{', '.join(sorted(PASS_NAMES))})")
             if cfg is not None and not isinstance(cfg, dict):
                 raise ValueError(f"override_tuning: {name}: expected a dict or None, "
                                  f"got {cfg!r}")
@@ -109,42 +124,42 @@ def fit_config(config: dict | None, max_work_group_size: int) -> dict | None:
     return cfg
 
 
-def default_config(pass_name: str, info: DeviceInfo) -> dict | None:
-    """The configuration ``pass_name`` gets on the device ``info`` describes when no tuning
-    entry applies: the spec's GPU default on a GPU, its default elsewhere, fitted to the
-    device's maximum work-group size (:func:`fit_config`)."""
-    table = GPU_DEFAULTS if info.device_type == "GPU" else DEFAULTS
-    return fit_config(table[pass_name], info.max_work_group_size)
+def default_config(tunable: Tunable, info: DeviceInfo) -> dict | None:
+    """The configuration the pass ``tunable`` declares gets on the device ``info`` describes
+    when no tuning entry applies: its GPU default on a GPU, its default elsewhere, fitted
+    to the device's maximum work-group size (:func:`fit_config`)."""
+    return fit_config(tunable.default_for(info.device_type), info.max_work_group_size)
 
 
-def resolve(info: DeviceInfo, pass_name: str, bucket: str, digest: str,
+def resolve(info: DeviceInfo, tunable: Tunable, bucket: str, digest: str,
             root=None) -> Lookup:
     """The fallback chain for a described device (no OpenCL: :func:`tuned` is this plus the
     device query and a cache). The default level is :func:`default_config`; every level
     but the environment override is fitted to the device (:func:`fit_config`)."""
-    found = lookup(info, pass_name, bucket, digest,
-                   {pass_name: default_config(pass_name, info)}, root)
+    name = tunable.name
+    found = lookup(info, name, bucket, digest, {name: default_config(tunable, info)}, root)
     if found.source == "env":
         return found
     return Lookup(fit_config(found.config, info.max_work_group_size), found.source, found.path)
 
 
-def tuned(context: cl.Context, pass_name: str, info: FrameInfo) -> Lookup:
-    """The configuration ``pass_name`` should use for frames like ``info`` on ``context``."""
-    spec = SPECS[pass_name]
+def tuned(context: cl.Context, tunable: Tunable, info: FrameInfo) -> Lookup:
+    """The configuration the pass ``tunable`` declares should use for frames like ``info``
+    on ``context``."""
+    name = tunable.name
     dev = context.devices[0]
     forced = _override.get()
     if forced == "default":
-        return Lookup(default_config(pass_name, describe(dev)), "default", None)
-    if isinstance(forced, dict) and pass_name in forced:
-        cfg = forced[pass_name]
+        return Lookup(default_config(tunable, describe(dev)), "default", None)
+    if isinstance(forced, dict) and name in forced:
+        cfg = forced[name]
         return Lookup(None if cfg is None else dict(cfg), "override", None)
     bucket = bucket_for(info.width, info.height, info.spp)
-    digest = source_hash(spec.kernel_file)
-    env = os.environ.get(f"CLRECON_TUNE_{pass_name.upper()}")
-    key = (dev.int_ptr, pass_name, bucket, digest, env)
+    digest = source_hash(tunable.kernel_file)
+    env = os.environ.get(f"CLRECON_TUNE_{name.upper()}")
+    key = (dev.int_ptr, name, bucket, digest, env)
     if key not in _cache:
-        _cache[key] = resolve(describe(dev), pass_name, bucket, digest)
+        _cache[key] = resolve(describe(dev), tunable, bucket, digest)
     return _cache[key]
 
 

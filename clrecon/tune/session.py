@@ -7,8 +7,8 @@ import pyopencl as cl
 
 from clrecon.core.device import Device, DeviceSpec, get_device, source_hash
 from clrecon.tune.db import bucket_for, db_path, entry_key, load, save_result
+from clrecon.tune.runners import SPECS
 from clrecon.tune.runtime import clear_cache
-from clrecon.tune.specs import SPECS
 from clrecon.tune.tuner import BudgetExceeded, tune
 
 #: the frame size tuned by default: large enough to be representative, small enough that

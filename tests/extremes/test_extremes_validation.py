@@ -7,9 +7,7 @@ import pytest
 from extremes import CASES, make_frame
 
 import clrecon
-from clrecon.core.pipeline import METHODS, _load_methods
-
-_load_methods()
+from clrecon.api import METHODS
 
 BREAKS = {
     "color": lambda b: b.color.__setitem__((1, 2, 0, 1), np.nan),

@@ -23,18 +23,20 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from conftest import assert_close
-from layered_frames import LAY, empty, fields, kabc, read, to_device, upload
+from layered_frames import LAYOUT, bucket_coeffs, empty, fields, read, to_device, upload
 from layered_frames import frame as layered_frame
 from splat_frames import frame as splat_frame
+from splat_frames import reference_splat
 
 from clrecon.core import device as cldev
 from clrecon.core.knobs import KnobTypeError
-from clrecon.core.pipeline import DeviceSamples, LocalSize
+from clrecon.core.local_size import LocalSize
+from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods.layered import LayeredPipeline
+from clrecon.methods.layered import layout as geom
 from clrecon.methods.layered import reference as lref
 from clrecon.methods.layered.reproject import Reproject
 from clrecon.methods.splat import SplatPipeline
-from clrecon.methods.splat import reference as sref
 
 RUNS = 3
 PROBE = """
@@ -115,14 +117,6 @@ def _splat(device, buf, runs=RUNS, **knobs):
     return pipe, got
 
 
-def _reference_splat(pipe, buf):
-    t = pipe.table
-    inv_near = pipe.inv_far + pipe.layers / pipe.layer_scale if pipe.layer_scale else pipe.inv_far
-    return sref.splat(buf, t.as_tuple(), t.model.cell_of, pipe.layers, (pipe.inv_far, inv_near),
-                      pipe.pad, pipe.reach, t.fast.astype(bool), rotate=len(t.model.n) == 2,
-                      smax=t.model.smax)
-
-
 @pytest.mark.parametrize("knobs", [
     dict(psf="combined", layers=2),
     # every cell sparse: the Laplacian images (values of both signs) carry everything
@@ -140,7 +134,7 @@ def test_splat_is_bit_identical_and_matches_reference(device, rng, knobs):
         for a, b, what in ((img, runs[0][0], "image"), (lap, runs[0][1], "laplacian"),
                            (direct, runs[0][2], "direct")):
             assert np.array_equal(a.view(np.uint32), b.view(np.uint32)), f"{what} differs"
-    want_lap, want_direct = _reference_splat(pipe, buf)
+    want_lap, want_direct = reference_splat(pipe, buf)
     scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
     _, lap, direct = runs[0]
     assert np.abs(want_direct).max() > 0
@@ -204,7 +198,7 @@ def test_splat_brightest_colours_cannot_overflow(device, rng):
     for img, lap, direct in runs:
         assert np.isfinite(img).all() and np.isfinite(direct).all() and np.isfinite(lap).all()
         assert np.array_equal(img, runs[0][0])
-    want_lap, want_direct = _reference_splat(pipe, buf)
+    want_lap, want_direct = reference_splat(pipe, buf)
     scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
     assert scale > 1e27
     _, lap, direct = runs[0]
@@ -230,10 +224,10 @@ def _fixed_exponent(klog2: int, m: float) -> int:
 
 
 # -- layered ---------------------------------------------------------------------------------
-def _params(buf, lay):
+def _params(buf, layout):
     st = lref.tile_stats(buf.depth, buf.motion, buf.coc_model.c0, buf.coc_model.c1,
-                         kabc(buf, lay), lay, 1)
-    return lref.partition_setup(st, lay, 0.33, 0.1).astype(np.float32)
+                         bucket_coeffs(buf, layout), layout, 1)
+    return lref.partition_setup(st, layout, 0.33, 0.1).astype(np.float32)
 
 
 @pytest.mark.parametrize("bilinear", [False, True], ids=["nearest", "bilinear"])
@@ -241,13 +235,13 @@ def test_reproject_fixed_is_bit_identical_and_matches_reference(device, rng, bil
     if not _int64(device):
         pytest.skip("device lacks cl_khr_int64_base_atomics")
     buf = layered_frame(rng, s=16)
-    lay = lref.Layout(**{**LAY.__dict__, "spp": 16})
-    params = _params(buf, lay)
+    layout = geom.Layout(**{**LAYOUT.__dict__, "spp": 16})
+    params = _params(buf, layout)
     q = device.queue
-    shape = params.shape[:2] + (lref.NCH, lay.dmax * lay.dmax)
-    k = kabc(buf, lay)
+    shape = params.shape[:2] + (geom.NCH, layout.dmax * layout.dmax)
+    k = bucket_coeffs(buf, layout)
     samples, dparams = upload(q, buf), to_device(q, params)
-    rp = Reproject(device.context, lay, bilinear, LocalSize(16, 1), fixed=True)
+    rp = Reproject(device.context, layout, bilinear, LocalSize(16, 1), fixed=True)
     fixed = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, int(np.prod(shape)) * 8)
     bound = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, 16)
     runs = []
@@ -261,7 +255,7 @@ def test_reproject_fixed_is_bit_identical_and_matches_reference(device, rng, bil
     flat = [np.concatenate([x.ravel() for x in r]) for r in runs]
     for f in flat[1:]:
         assert np.array_equal(f, flat[0]), "fixed-point grids differ run to run"
-    want = lref.used_grid(lref.reproject(fields(buf), params.astype(np.float64), k, lay,
+    want = lref.used_grid(lref.reproject(fields(buf), params.astype(np.float64), k, layout,
                                          bilinear), params)
     assert sum(x[3].sum() for x in want) > 0 and sum(x[4].sum() for x in want) > 0
     assert_close(flat[0], np.concatenate([x.ravel() for x in want]), rtol=1e-4, atol=2e-4,

@@ -21,8 +21,9 @@ import pytest
 from conftest import assert_close
 
 import clrecon
+from clrecon.api import make_pipeline
 from clrecon.core.errors import DeviceMemoryError
-from clrecon.core.pipeline import DeviceSamples, make_pipeline
+from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.plan import BOX_PLAN, covering
 from clrecon.scenes import get_scene, render_samples
 
@@ -50,7 +51,8 @@ def _read(dev, out, buf, ev):
 _REUSE = textwrap.dedent("""
     import json, sys, numpy as np, pyopencl as cl
     from clrecon.core.device import get_device
-    from clrecon.core.pipeline import DeviceSamples, make_pipeline
+    from clrecon.api import make_pipeline
+    from clrecon.core.pipeline import DeviceSamples
     from clrecon.scenes import get_scene, render_samples
     method, knobs = sys.argv[1], json.loads(sys.argv[2])
     dev = get_device(int(sys.argv[3]))
@@ -274,7 +276,7 @@ _ULIMIT = textwrap.dedent("""
     import dataclasses, resource, sys
     from clrecon.core.device import get_device
     from clrecon.core.errors import DeviceMemoryError
-    from clrecon.core.pipeline import make_pipeline
+    from clrecon.api import make_pipeline
     from clrecon.scenes import get_scene, render_samples
     dev = get_device(int(sys.argv[1]))
     info = render_samples(get_scene("fence"), 32, 32, spp=4, seed=0, device=dev).inspect()

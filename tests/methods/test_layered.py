@@ -9,9 +9,11 @@ from conftest import assert_close, trusted_reference
 from layered_frames import frame
 
 import clrecon
+from clrecon.api import make_pipeline
 from clrecon.core.camera import CocModel
-from clrecon.core.pipeline import DeviceSamples, make_pipeline
+from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import SampleBuffer
+from clrecon.methods.layered import layout as geom
 from clrecon.methods.layered import reference as ref
 from clrecon.metrics import psnr
 from clrecon.scenes import Material, Plane, Scene, get_scene, render_samples
@@ -101,10 +103,10 @@ def _partition_counts(device, buf, **knobs):
     s = DeviceSamples.upload(device.queue, buf, pipe.fields)
     out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
     pipe(device.queue, s, out).wait()
-    ntx, nty = pipe.lay.tiles(buf.width, buf.height)
-    params = np.empty((ntx * nty, pipe.lay.maxp, ref.NPAR), np.float32)
+    ntx, nty = pipe.layout.tiles(buf.width, buf.height)
+    params = np.empty((ntx * nty, pipe.layout.maxp, geom.NPAR), np.float32)
     cl.enqueue_copy(device.queue, params, pipe.buffers["params"])
-    return (params[..., ref.P_DIM] > 0).sum(1)
+    return (params[..., geom.P_DIM] > 0).sum(1)
 
 
 def test_partitions_per_tile_fall_after_merging(device):
@@ -121,17 +123,17 @@ def test_sparse_and_full_statistics_give_close_filters(device, rng):
     buf = frame(rng, h=32, w=32, s=8, misses=False)
     buf.depth[:] = 2.9 * rng.uniform(0.995, 1.005, buf.depth.shape)
     buf.motion[:] = np.array([8.0, 2.0]) + rng.normal(0, 0.5, buf.motion.shape)
-    lay = ref.Layout(tile=32, spp=8)
+    layout = geom.Layout(tile=32, spp=8)
     info = buf.inspect()
-    k = ref.bucket_params(buf.coc_model.c0, buf.coc_model.c1, info.min_depth, info.max_depth,
-                          32)
+    k = geom.bucket_params(buf.coc_model.c0, buf.coc_model.c1, info.min_depth, info.max_depth,
+                           32)
     filters = []
     for stride in (1, 24):
-        st = ref.tile_stats(buf.depth, buf.motion, buf.coc_model.c0, buf.coc_model.c1, k, lay,
+        st = ref.tile_stats(buf.depth, buf.motion, buf.coc_model.c0, buf.coc_model.c1, k, layout,
                             stride)
-        p = ref.partition_setup(st, lay, 0.33, 0.1)[0]
-        assert (p[:, ref.P_DIM] > 0).sum() == 1
-        filters.append(p[0, [ref.P_A, ref.P_BX, ref.P_BY, ref.P_SU, ref.P_SV]])
+        p = ref.partition_setup(st, layout, 0.33, 0.1)[0]
+        assert (p[:, geom.P_DIM] > 0).sum() == 1
+        filters.append(p[0, [geom.P_A, geom.P_BX, geom.P_BY, geom.P_SU, geom.P_SV]])
     assert_close(filters[1], filters[0], rtol=0.05, atol=0.05, what="sparse vs full")
     # and the device pipeline's images from the two are close too
     a = clrecon.reconstruct(buf, "layered", device, stats_stride=1, safeguard=False)
@@ -211,7 +213,8 @@ def test_describe_reports_mode_filter_and_specialisation(device, rng):
     assert (m["mode"], m["filter"], m["defocus_only"]) == ("practical", "sheared", False)
     assert m["stats_stride"] == 12 and m["merge_threshold"] == 0.1
     assert set(res.pass_ms) == {"tile_stats", "partition_setup", "reproject",
-                                "filter_sheared_x", "filter_sheared_y", "composite"}
+                                "filter_sheared_recursive", "filter_sheared_gauss",
+                                "layered_composite"}
     res = clrecon.run(frame(rng, motion=False), "layered", device, mode="lrdm",
                       safeguard=False)
     m = res.method
@@ -228,7 +231,7 @@ def test_knob_errors(device, rng):
                         (dict(tile=24), "tile"), (dict(stats_stride=0), "stats_stride"),
                         (dict(splat="cubic"), "splat"), (dict(max_partitions=0), "max_part"),
                         (dict(subsample=0), "subsample"), (dict(subsample=2.5), "subsample"),
-                        (dict(subsample="lots"), "subsample"),
+                        (dict(subsample="lots"), "subsample"), (dict(subsample=True), "subsample"),
                         (dict(mip_images=True), "mip_images")):
         with pytest.raises(ValueError, match=word):
             clrecon.reconstruct(buf, "layered", device, **knobs, safeguard=False)
@@ -260,9 +263,9 @@ def test_buffers_reused_across_frames(device, rng):
 def test_layered_header_leaves_other_kernels_hashes_alone():
     """Tuning entries key on a kernel's source hash; ``layered.h`` is in the hash of the
     kernels that include it only (it used to make every tuned entry stale)."""
-    from clrecon.core.device import _included_headers, kernel_source
+    from clrecon.core.build import _included_headers, kernel_source
 
     assert {p.name for p in _included_headers(kernel_source("box"))} == {"common.h"}
-    assert {p.name for p in _included_headers(kernel_source("reproject"))} == {"common.h",
-                                                                               "layered.h"}
-    assert {p.name for p in _included_headers(kernel_source("composite"))} == {"layered.h"}
+    assert {p.name for p in _included_headers(kernel_source("reproject"))} == {
+        "common.h", "layered.h", "reproject_lanes.h"}
+    assert {p.name for p in _included_headers(kernel_source("layered_composite"))} == {"layered.h"}

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from layered_frames import frame
 
+from clrecon.api import make_pipeline, run
 from clrecon.core import device as cldev
-from clrecon.core.pipeline import make_pipeline, run
 from clrecon.core.samples import SampleBuffer
 
 #: (id, method, knobs): one entry per code path a device can take; variants a device cannot

@@ -8,8 +8,9 @@ import pytest
 from conftest import assert_close
 from layered_frames import frame
 
+from clrecon.api import make_pipeline, run
 from clrecon.core.camera import CocModel
-from clrecon.core.pipeline import DeviceSamples, make_pipeline, run
+from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import SampleBuffer
 from clrecon.methods import safeguard as sg
 

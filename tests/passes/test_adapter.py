@@ -1,7 +1,7 @@
 """Input adapter (``kernels/adapt.cl``, :mod:`clrecon.core.adapter`): interleaved records unpacked
 into the structure of arrays on the device, against the TLFR loader and the source arrays.
 
-Run as a script (``python tests/test_adapter.py [H W S]``) to time the TLFR unpack.
+Run as a script (``python tests/passes/test_adapter.py [H W S]``) to time the TLFR unpack.
 """
 from __future__ import annotations
 
@@ -343,7 +343,7 @@ def test_bad_fields_and_buffers(device):
 
 
 # ==========================================================================================
-# timing (not a test): python tests/test_adapter.py [H W S]
+# timing (not a test): python tests/passes/test_adapter.py [H W S]
 # ==========================================================================================
 def _bench(height=720, width=1280, spp=8, repeats=5):
     from clrecon.core.device import event_ms, get_device

@@ -6,7 +6,8 @@ import pytest
 from conftest import assert_close
 
 import clrecon
-from clrecon.core.pipeline import LocalSize, make_pipeline
+from clrecon.api import make_pipeline
+from clrecon.core.local_size import LocalSize
 from clrecon.core.samples import SampleBuffer
 
 

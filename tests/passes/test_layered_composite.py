@@ -1,47 +1,48 @@
-"""Pass ``composite`` against the NumPy reference; the blending rule on hand-made layers."""
+"""Pass ``layered_composite`` against the NumPy reference; the blending rule on hand-made layers."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from conftest import assert_close
-from layered_frames import LAY, empty, fields, frame, kabc, read, to_device
+from layered_frames import LAYOUT, bucket_coeffs, empty, fields, frame, read, to_device
 from test_layered_reproject import params_of
 
+from clrecon.methods.layered import layout as geom
 from clrecon.methods.layered import reference as ref
-from clrecon.methods.layered.composite import Composite
+from clrecon.methods.layered.composite import LayeredComposite
 
 
 @pytest.mark.parametrize("tile", [16, 2], ids=["float4-lanes", "one-pixel"])
 def test_composite_matches_reference(device, rng, tile):
     """Four pixels per work-item (tiles >= 4; 19 px wide, so the last quad is partial) and
     one per work-item (tile 2) give the reference's image."""
-    lay = ref.Layout(**{**LAY.__dict__, "tile": tile})
+    layout = geom.Layout(**{**LAYOUT.__dict__, "tile": tile})
     buf = frame(rng, h=35, w=19)
-    params = params_of(buf, lay)
+    params = params_of(buf, layout)
     p64 = params.astype(np.float64)
-    grids = ref.reproject(fields(buf), p64, kabc(buf, lay), lay)
-    filtered = ref.filter_sheared_y(p64, ref.filter_sheared_x(p64, grids), lay)
+    grids = ref.reproject(fields(buf), p64, bucket_coeffs(buf, layout), layout)
+    filtered = ref.filter_sheared_y(p64, ref.filter_sheared_x(p64, grids), layout)
     filtered[0, 0] = 0.0  # a tile whose front layer covers nothing
     q = device.queue
     out = empty(q, (buf.height, buf.width, 3))
-    ev = Composite(device.context, lay)(q, to_device(q, buf.color), to_device(q, params),
-                                        to_device(q, filtered), buf.width, buf.height, out)
+    ev = LayeredComposite(device.context, layout)(q, to_device(q, buf.color), to_device(q, params),
+                                           to_device(q, filtered), buf.width, buf.height, out)
     got = read(q, out, (buf.height, buf.width, 3), [ev])
-    want = ref.composite(buf.color, p64, filtered, lay)
+    want = ref.composite(buf.color, p64, filtered, layout)
     assert_close(got, want, rtol=1e-4, atol=1e-5, what="composite")
 
 
 def test_front_to_back_blend():
     """Two layers: front opacity 0.25 red over an opaque blue: 0.25 red + 0.75 blue."""
-    lay = ref.Layout(tile=2, nbuckets=4, maxp=2, gmax=2, spp=1)
-    p = np.zeros((1, 2, ref.NPAR))
-    p[0, :, ref.P_DIM] = 6
-    p[0, :, ref.P_SCALE] = 1
-    f = np.zeros((1, 2, ref.NCH, 16))
+    layout = geom.Layout(tile=2, nbuckets=4, maxp=2, gmax=2, spp=1)
+    p = np.zeros((1, 2, geom.NPAR))
+    p[0, :, geom.P_DIM] = 6
+    p[0, :, geom.P_SCALE] = 1
+    f = np.zeros((1, 2, geom.NCH, 16))
     f[0, 0, :, :] = np.array([1.0, 0, 0, 1.0, 3.0])[:, None]  # w 1, behind 3, colour sum 1
     f[0, 1, :, :] = np.array([0, 0, 2.0, 2.0, 0.0])[:, None]
-    img = ref.composite(np.zeros((2, 2, 1, 3)), p, f, lay)
+    img = ref.composite(np.zeros((2, 2, 1, 3)), p, f, layout)
     assert_close(img, np.broadcast_to([0.25, 0, 0.75], (2, 2, 3)), what="blend")
     f[0, 1] = 0.0  # nothing behind: renormalised by the front layer's opacity
-    img = ref.composite(np.zeros((2, 2, 1, 3)), p, f, lay)
+    img = ref.composite(np.zeros((2, 2, 1, 3)), p, f, layout)
     assert_close(img, np.broadcast_to([1.0, 0, 0], (2, 2, 3)), what="renormalised")

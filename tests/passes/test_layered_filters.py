@@ -6,67 +6,70 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from conftest import assert_close
-from layered_frames import LAY, empty, fields, frame, kabc, read, to_device
+from layered_frames import LAYOUT, bucket_coeffs, empty, fields, frame, read, to_device
 from test_layered_reproject import params_of
 
+from clrecon.methods.layered import layout as geom
 from clrecon.methods.layered import reference as ref
 from clrecon.methods.layered.filter_mip import FilterMip, atlas_layout
 from clrecon.methods.layered.filter_rotated import FilterRotated
 from clrecon.methods.layered.filter_sheared import FilterSheared
 from clrecon.methods.layered.passes import local_for
+from clrecon.methods.layered.reference_filters import mip_pyramid
 
 
-def inputs(rng, lay=LAY):
+def inputs(rng, layout=LAYOUT):
     buf = frame(rng, h=33, w=20)
-    params = params_of(buf, lay)
-    grids = ref.reproject(fields(buf), params.astype(np.float64), kabc(buf, lay), lay)
+    params = params_of(buf, layout)
+    grids = ref.reproject(fields(buf), params.astype(np.float64), bucket_coeffs(buf, layout),
+                          layout)
     return params, grids
 
 
 def test_filter_sheared_matches_reference(device, rng):
     params, grids = inputs(rng)
-    used = params[..., ref.P_DIM] > 0
+    used = params[..., geom.P_DIM] > 0
     # both decompositions (the kernel's float4 lanes run along u or w), fine and coarse grids
-    assert set(params[..., ref.P_AXIS][used].tolist()) == {0.0, 1.0}
-    assert len(set(params[..., ref.P_SCALE][used].tolist())) > 1
+    assert set(params[..., geom.P_AXIS][used].tolist()) == {0.0, 1.0}
+    assert len(set(params[..., geom.P_SCALE][used].tolist())) > 1
     q = device.queue
     nslots = params.shape[0] * params.shape[1]
-    fshape = params.shape[:2] + (ref.NCH, LAY.ft ** 2)
+    fshape = params.shape[:2] + (geom.NCH, LAYOUT.filtered_side ** 2)
     d_grids, filtered = to_device(q, grids), empty(q, fshape)
-    fs = FilterSheared(device.context, LAY)
+    fs = FilterSheared(device.context, LAYOUT)
     ev = fs(q, to_device(q, params), d_grids, filtered, nslots)
     got_x = read(q, d_grids, grids.shape, [ev])
     got = read(q, filtered, fshape, [ev])
     p64 = params.astype(np.float64)
     want_x = ref.filter_sheared_x(p64, grids)
-    want = ref.filter_sheared_y(p64, want_x, LAY)
+    want = ref.filter_sheared_y(p64, want_x, LAYOUT)
     assert_close(np.concatenate([g.ravel() for g in ref.used_grid(got_x, params)]),
                  np.concatenate([g.ravel() for g in ref.used_grid(want_x, params)]),
                  rtol=1e-4, atol=1e-4, what="sheared x")
-    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, LAY)]),
-                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, LAY)]),
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, LAYOUT)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, LAYOUT)]),
                  rtol=1e-4, atol=1e-4, what="sheared y")
 
 
-def crafted_slots(rng, lay, fields, slots):
+def crafted_slots(rng, layout, fields, slots):
     """Params with slot 0 of tile t set from ``slots[t]`` (values for ``fields``, plus scale
     and guard last), its grid of random values; every other slot empty."""
-    params = np.zeros((len(slots), lay.maxp, ref.NPAR), np.float32)
-    grids = np.zeros(params.shape[:2] + (ref.NCH, lay.dmax ** 2), np.float32)
+    params = np.zeros((len(slots), layout.maxp, geom.NPAR), np.float32)
+    grids = np.zeros(params.shape[:2] + (geom.NCH, layout.dmax ** 2), np.float32)
     for t, values in enumerate(slots):
         p = params[t, 0]
-        p[list(fields) + [ref.P_SCALE, ref.P_GUARD]] = values
-        dim = lay.tile // int(p[ref.P_SCALE]) + 2 * int(p[ref.P_GUARD])
-        p[ref.P_DIM] = dim
-        grids[t, 0, :, :dim * dim] = rng.random((ref.NCH, dim * dim))
+        p[list(fields) + [geom.P_SCALE, geom.P_GUARD]] = values
+        dim = layout.tile // int(p[geom.P_SCALE]) + 2 * int(p[geom.P_GUARD])
+        p[geom.P_DIM] = dim
+        grids[t, 0, :, :dim * dim] = rng.random((geom.NCH, dim * dim))
     return params, grids
 
 
-def assert_filtered_close(got, want, params, lay, tol, what, relative=False):
+def assert_filtered_close(got, want, params, layout, tol, what, relative=False):
     """The used part of two filtered-slot arrays agree to ``tol`` (times the largest value of
     ``want`` with ``relative``)."""
-    g = np.concatenate([x.ravel() for x in ref.used_filtered(got, params, lay)])
-    w = np.concatenate([x.ravel() for x in ref.used_filtered(want, params, lay)])
+    g = np.concatenate([x.ravel() for x in ref.used_filtered(got, params, layout)])
+    w = np.concatenate([x.ravel() for x in ref.used_filtered(want, params, layout)])
     scale = max(np.abs(w).max(), 1e-6) if relative else 1.0
     assert_close(g / scale, w / scale, rtol=tol, atol=tol, what=what)
 
@@ -77,35 +80,36 @@ def test_filter_sheared_y_where_shear_leaves_the_grid(device, rng, axis, beta):
     """A steep shear and a thin guard band move taps past every edge of the grid, where the
     kernel's float4 lanes fall back to lane-by-lane taps; the result must still be the
     reference's (taps outside the grid dropped)."""
-    lay = LAY
-    params, grids = crafted_slots(rng, lay, (ref.P_SHV, ref.P_BETA, ref.P_AXIS),
+    layout = LAYOUT
+    params, grids = crafted_slots(rng, layout, (geom.P_SHV, geom.P_BETA, geom.P_AXIS),
                                   [(2.3, beta, axis, 1, 3), (2.3, beta, axis, 2, 2)])
     q = device.queue
-    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
+    fshape = params.shape[:2] + (geom.NCH, layout.filtered_side ** 2)
     filtered = empty(q, fshape)
-    fs = FilterSheared(device.context, lay)
+    fs = FilterSheared(device.context, layout)
     d_params, d_grids = to_device(q, params), to_device(q, grids)  # alive until read
-    fs.ky.set_args(d_params, d_grids, filtered)
-    gsz, loc = local_for(fs.local, (-(-lay.ft // 4), lay.ft, params.shape[0] * lay.maxp))
-    ev = cl.enqueue_nd_range_kernel(q, fs.ky, gsz, loc)
+    fs.gauss.set_args(d_params, d_grids, filtered)
+    side = layout.filtered_side
+    gsz, loc = local_for(fs.local, (-(-side // 4), side, params.shape[0] * layout.maxp))
+    ev = cl.enqueue_nd_range_kernel(q, fs.gauss, gsz, loc)
     got = read(q, filtered, fshape, [ev])
-    want = ref.filter_sheared_y(params.astype(np.float64), grids.astype(np.float64), lay)
-    assert_filtered_close(got, want, params, lay, 1e-4, "sheared y at the edges")
+    want = ref.filter_sheared_y(params.astype(np.float64), grids.astype(np.float64), layout)
+    assert_filtered_close(got, want, params, layout, 1e-4, "sheared y at the edges")
 
 
 def test_filter_rotated_matches_reference(device, rng):
-    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
-    params, grids = inputs(rng, lay)
+    layout = geom.Layout(**{**LAYOUT.__dict__, "maxp": 2})
+    params, grids = inputs(rng, layout)
     q = device.queue
     nslots = params.shape[0] * params.shape[1]
-    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
+    fshape = params.shape[:2] + (geom.NCH, layout.filtered_side ** 2)
     filtered, tmp = empty(q, fshape), empty(q, grids.shape)
-    ev = FilterRotated(device.context, lay)(q, to_device(q, params), to_device(q, grids), tmp,
-                                            filtered, nslots)
+    ev = FilterRotated(device.context, layout)(q, to_device(q, params), to_device(q, grids), tmp,
+                                               filtered, nslots)
     got = read(q, filtered, fshape, [ev])
-    _, want = ref.filter_rotated(params.astype(np.float64), grids, lay)
-    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, lay)]),
-                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, lay)]),
+    _, want = ref.filter_rotated(params.astype(np.float64), grids, layout)
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, layout)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, layout)]),
                  rtol=2e-4, atol=2e-4, what="rotated")
 
 
@@ -117,19 +121,19 @@ def test_sheared_and_rotated_agree_on_an_impulse(coc, motion):
     second moments of the filtered impulse match S within the truncation/recursion error.
     The thin ellipses a few degrees off an axis are the case where eq. 9's form, one tap
     per row, collapsed to a point (the transposed form is chosen there)."""
-    lay = ref.Layout(tile=16, nbuckets=4, maxp=1, gmax=16, spp=1)
+    layout = geom.Layout(tile=16, nbuckets=4, maxp=1, gmax=16, spp=1)
     mx, my = motion
     s = np.array([1, coc, coc * coc, mx, my, mx * mx, my * my, mx * my])
-    p = ref._params(s, 0, 3, 0.33, lay)[None, None]
-    assert p[0, 0, ref.P_SCALE] == 1
-    dim = int(p[0, 0, ref.P_DIM])
-    grids = np.zeros((1, 1, ref.NCH, lay.dmax ** 2))
+    p = ref._params(s, 0, 3, 0.33, layout)[None, None]
+    assert p[0, 0, geom.P_SCALE] == 1
+    dim = int(p[0, 0, geom.P_DIM])
+    grids = np.zeros((1, 1, geom.NCH, layout.dmax ** 2))
     grids[0, 0, 3, (dim // 2) * dim + dim // 2] = 1.0
-    sh = ref.filter_sheared_y(p, ref.filter_sheared_x(p, grids), lay)
-    _, ro = ref.filter_rotated(p, grids, lay)
+    sh = ref.filter_sheared_y(p, ref.filter_sheared_x(p, grids), layout)
+    _, ro = ref.filter_rotated(p, grids, layout)
     su, sv, a, xy, b = ref.partition_filter(s, 0.33)
-    n = lay.tile + 2
-    yy, xx = np.mgrid[0:n, 0:n] - (dim // 2 - int(p[0, 0, ref.P_GUARD]) + 1)
+    n = layout.tile + 2
+    yy, xx = np.mgrid[0:n, 0:n] - (dim // 2 - int(p[0, 0, geom.P_GUARD]) + 1)
     for img in (sh, ro):
         im = img[0, 0, 3].reshape(n, n)
         m = im / im.sum()
@@ -137,40 +141,40 @@ def test_sheared_and_rotated_agree_on_an_impulse(coc, motion):
         assert_close(cov, [a, xy, b], rtol=0.15, atol=0.15, what="impulse covariance")
 
 
-def run_mip(device, lay, params, grids, images=False):
+def run_mip(device, layout, params, grids, images=False):
     """filter_mip (build and sample; with ``images`` through the atlas and the linear
     sampler) on the device: the filtered slots."""
     q = device.queue
     nslots = params.shape[0] * params.shape[1]
-    fshape = params.shape[:2] + (ref.NCH, lay.ft ** 2)
+    fshape = params.shape[:2] + (geom.NCH, layout.filtered_side ** 2)
     filtered = empty(q, fshape)
-    atlas = atlas_layout(device.context.devices[0], lay, nslots)[0] if images else None
-    fm = FilterMip(device.context, lay, atlas=atlas)
-    pyr = empty(q, (nslots, ref.NCH, fm.plane))
+    atlas = atlas_layout(device.context.devices[0], layout, nslots)[0] if images else None
+    fm = FilterMip(device.context, layout, atlas=atlas)
+    pyr = empty(q, (nslots, geom.NCH, fm.plane))
     d_params, d_grids = to_device(q, params), to_device(q, grids)  # alive until read
     ev = fm(q, d_params, d_grids, pyr, filtered, nslots)
     return read(q, filtered, fshape, [ev])
 
 
 def test_filter_mip_matches_reference(device, rng):
-    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
-    params, grids = inputs(rng, lay)
-    got = run_mip(device, lay, params, grids)
-    want = ref.filter_mip(params.astype(np.float64), grids, lay)
-    assert_filtered_close(got, want, params, lay, 2e-4, "mip")
+    layout = geom.Layout(**{**LAYOUT.__dict__, "maxp": 2})
+    params, grids = inputs(rng, layout)
+    got = run_mip(device, layout, params, grids)
+    want = ref.filter_mip(params.astype(np.float64), grids, layout)
+    assert_filtered_close(got, want, params, layout, 2e-4, "mip")
 
 
 @pytest.mark.parametrize("theta", [0.0, 0.6, 2.2])
 def test_filter_mip_where_probes_leave_the_grid(device, rng, theta):
     """Long, thin footprints on a thin guard band put probes past the grid's edges and
     corners, where the kernel's four-texel fast path gives way to the texel-by-texel one."""
-    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
+    layout = geom.Layout(**{**LAYOUT.__dict__, "maxp": 2})
     c, s = np.cos(theta), np.sin(theta)
-    params, grids = crafted_slots(rng, lay, (ref.P_SU, ref.P_SV, ref.P_COS, ref.P_SIN),
+    params, grids = crafted_slots(rng, layout, (geom.P_SU, geom.P_SV, geom.P_COS, geom.P_SIN),
                                   [(9.0, 0.6, c, s, 1, 2), (14.0, 3.0, c, s, 2, 3)])
-    got = run_mip(device, lay, params, grids)
-    want = ref.filter_mip(params.astype(np.float64), grids.astype(np.float64), lay)
-    assert_filtered_close(got, want, params, lay, 2e-4, "mip at the edges")
+    got = run_mip(device, layout, params, grids)
+    want = ref.filter_mip(params.astype(np.float64), grids.astype(np.float64), layout)
+    assert_filtered_close(got, want, params, layout, 2e-4, "mip at the edges")
 
 
 #: the image variant interpolates with the sampler's own fraction: float on PoCL, a few
@@ -184,23 +188,23 @@ def test_filter_mip_images_match_reference(device, rng, edges):
     the grid and where probes leave it (the zero ring)."""
     if not device.info.image_support:
         pytest.skip("device without image support")
-    lay = ref.Layout(**{**LAY.__dict__, "maxp": 2})
+    layout = geom.Layout(**{**LAYOUT.__dict__, "maxp": 2})
     if edges:
         params, grids = crafted_slots(
-            rng, lay, (ref.P_SU, ref.P_SV, ref.P_COS, ref.P_SIN),
+            rng, layout, (geom.P_SU, geom.P_SV, geom.P_COS, geom.P_SIN),
             [(9.0, 0.6, 1.0, 0.0, 1, 2), (14.0, 3.0, 0.8, 0.6, 2, 3), (3.0, 2.0, 0.6, 0.8, 1, 4)])
     else:
-        params, grids = inputs(rng, lay)
-    got = run_mip(device, lay, params, grids, images=True)
-    want = ref.filter_mip(params.astype(np.float64), grids.astype(np.float64), lay)
-    assert_filtered_close(got, want, params, lay, IMAGE_TOL, "mip images", relative=True)
+        params, grids = inputs(rng, layout)
+    got = run_mip(device, layout, params, grids, images=True)
+    want = ref.filter_mip(params.astype(np.float64), grids.astype(np.float64), layout)
+    assert_filtered_close(got, want, params, layout, IMAGE_TOL, "mip images", relative=True)
 
 
 def test_mip_atlas_layout():
     """Level boxes of a DMAX grid fit their slot's region, regions tile the atlas."""
     for dmax in (6, 20, 64, 96):
-        nlev, _ = ref.mip_levels(dmax)
-        a = ref.mip_atlas(dmax, nlev, 37, 512)
+        nlev, _ = geom.mip_levels(dmax)
+        a = geom.mip_atlas(dmax, nlev, 37, 512)
         boxes = [-(-dmax // (1 << lv)) + 2 for lv in range(nlev)]
         assert a["rw"] >= boxes[0] + (boxes[1] if nlev > 1 else 0) + (boxes[2] if nlev > 2 else 0)
         assert a["rh"] >= boxes[0] and a["rh"] >= sum(boxes[2:])
@@ -209,7 +213,7 @@ def test_mip_atlas_layout():
 
 
 def test_mip_pyramid_keeps_the_mean():
-    planes = np.random.default_rng(3).uniform(size=(ref.NCH, 16, 16))
-    levels = ref.mip_pyramid(planes)
+    planes = np.random.default_rng(3).uniform(size=(geom.NCH, 16, 16))
+    levels = mip_pyramid(planes)
     assert [lv.shape[-1] for lv in levels] == [16, 8, 4, 2, 1]
     assert_close([lv.mean() for lv in levels], [planes.mean()] * 5, rtol=1e-12, what="mean")

@@ -4,15 +4,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import assert_close
-from layered_frames import LAY, empty, frame, kabc, read, upload
+from layered_frames import LAYOUT, bucket_coeffs, empty, frame, read, upload
 
+from clrecon.methods.layered import layout as geom
 from clrecon.methods.layered import reference as ref
 from clrecon.methods.layered.tile_stats import TileStats
 
 
 def test_buckets_ordered_by_depth_and_spaced_in_coc(rng):
     buf = frame(rng)
-    k = kabc(buf)
+    k = bucket_coeffs(buf)
     z = np.geomspace(2.2, 40.0, 2000)
     b = ref.buckets(z, *k, 32)
     assert (np.diff(b) >= 0).all() and b[0] == 0 and b[-1] == 30
@@ -29,14 +30,14 @@ def test_buckets_ordered_by_depth_and_spaced_in_coc(rng):
                          ids=["full", "sparse", "sparse-nomotion", "full-nomotion"])
 def test_tile_stats_matches_reference(device, rng, stride, motion):
     buf = frame(rng, motion=motion)
-    lay = ref.Layout(**{**LAY.__dict__, "has_motion": motion})
+    layout = geom.Layout(**{**LAYOUT.__dict__, "has_motion": motion})
     q = device.queue
-    ntx, nty = lay.tiles(buf.width, buf.height)
-    k = kabc(buf, lay)
-    stats = empty(q, (ntx * nty, lay.nbuckets, ref.NSTAT))
-    ev = TileStats(device.context, lay)(q, upload(q, buf), k, stride, 7, stats)
-    got = read(q, stats, (ntx * nty, lay.nbuckets, ref.NSTAT), [ev])
-    want = ref.tile_stats(buf.depth, buf.motion, buf.coc_model.c0, buf.coc_model.c1, k, lay,
+    ntx, nty = layout.tiles(buf.width, buf.height)
+    k = bucket_coeffs(buf, layout)
+    stats = empty(q, (ntx * nty, layout.nbuckets, geom.NSTAT))
+    ev = TileStats(device.context, layout)(q, upload(q, buf), k, stride, 7, stats)
+    got = read(q, stats, (ntx * nty, layout.nbuckets, geom.NSTAT), [ev])
+    want = ref.tile_stats(buf.depth, buf.motion, buf.coc_model.c0, buf.coc_model.c1, k, layout,
                           stride, 7)
     assert want[..., 0].sum() > 0
     if stride == 1:
@@ -47,8 +48,8 @@ def test_tile_stats_matches_reference(device, rng, stride, motion):
 
 
 def test_sparse_addresses_are_stratified_and_seeded():
-    a = ref.stat_addresses(3, LAY, 12, seed=1)
+    a = ref.stat_addresses(3, LAYOUT, 12, seed=1)
     assert len(a) == 16 * 16 * 4 // 12 + 1
     assert ((a // 12) == np.arange(len(a))).all()  # one address per run of 12
-    assert (ref.stat_addresses(3, LAY, 12, seed=1) == a).all()
-    assert (ref.stat_addresses(3, LAY, 12, seed=2) != a).any()
+    assert (ref.stat_addresses(3, LAYOUT, 12, seed=1) == a).all()
+    assert (ref.stat_addresses(3, LAYOUT, 12, seed=2) != a).any()

@@ -1,4 +1,4 @@
-"""Pass ``composite``: back-to-front composition with coverage re-weighting against its NumPy
+"""Pass ``splat_composite``: back-to-front composition with coverage re-weighting against its NumPy
 reference, and the flat-field property it exists for."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from conftest import assert_close
 
 from clrecon.methods.splat import reference as ref
-from clrecon.methods.splat.composite import Composite
+from clrecon.methods.splat.composite import SplatComposite
 
 
 def run(device, prim, direct, ring, pad, h, w, use_lap=True, color=None):
@@ -23,7 +23,7 @@ def run(device, prim, direct, ring, pad, h, w, use_lap=True, color=None):
     if color is not None:
         dc = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(color, np.float32))
         spp = color.shape[2]
-    Composite(ctx, nl, use_lap)(q, db, dd, dr, w, h, pad, out, color=dc, spp=spp)
+    SplatComposite(ctx, nl, use_lap)(q, db, dd, dr, w, h, pad, out, color=dc, spp=spp)
     img = np.empty((h, w, 3), np.float32)
     cl.enqueue_copy(q, img, out)
     q.finish()

@@ -1,4 +1,4 @@
-"""Pass ``integrate``: the convolution pyramid kernel against its NumPy reference, and the
+"""Pass ``splat_integrate``: the convolution pyramid kernel against its NumPy reference, and the
 pyramid (F_5 and F_7) against an exact FFT Poisson solve of the same Laplacian.
 
 Stated tolerance (measured on the test image below: F_5 RMS 0.0070, max 0.133; F_7 RMS
@@ -14,7 +14,7 @@ import pytest
 from conftest import assert_close
 
 from clrecon.methods.splat import reference as ref
-from clrecon.methods.splat.integrate import Integrate
+from clrecon.methods.splat.integrate import SplatIntegrate
 from clrecon.methods.splat.precompute import laplacian5, poisson_fft
 
 
@@ -49,7 +49,7 @@ def test_integrate_kernel_matches_reference(device, rng, pyramid, shape):
     dlap = cl.Buffer(ctx, rw | cl.mem_flags.COPY_HOST_PTR, hostbuf=lap)
     dout = cl.Buffer(ctx, rw, lap.nbytes)
     dring = cl.Buffer(ctx, rw, layers * 16)
-    integ = Integrate(ctx, h, w, pyramid)
+    integ = SplatIntegrate(ctx, h, w, pyramid)
     for layer in range(layers):
         integ(q, dlap, layer, dout, dring)
     b0 = np.empty_like(lap)

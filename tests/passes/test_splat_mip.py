@@ -10,7 +10,8 @@ from conftest import assert_close
 from splat_frames import frame
 
 import clrecon
-from clrecon.core.pipeline import DeviceSamples, make_pipeline
+from clrecon.api import make_pipeline
+from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods.splat import mip_reference as mref
 from clrecon.methods.splat import reference as ref
 from clrecon.methods.splat.mip import MAX_LEVELS, MipGeometry
@@ -34,9 +35,9 @@ def run_mip(device, buf, **knobs):
 
 
 def reference(pipe, buf):
-    from clrecon.methods.splat import _layer_params
+    from clrecon.methods.splat.layers import layer_params
 
-    inv_far, scale = _layer_params(buf.inspect(), pipe.layers)
+    inv_far, scale = layer_params(buf.inspect(), pipe.layers)
     has_motion = pipe.has_motion and pipe.psf == "combined"
     lev0 = mref.level0(buf, pipe.geometry, inv_far, scale, has_motion)
     img = ref.composite(np.zeros_like(lev0), lev0, pipe.geometry.pad, buf.height, buf.width,
@@ -88,14 +89,14 @@ def test_energy_is_kept(device, rng):
     sums to the samples' weight (1 per pixel), to the analytic sums' ~1%."""
     buf = frame(rng, h=24, w=26, s=4, motion=True, aperture=24.0, misses=False)
     pipe, _, _ = run_mip(device, buf, mip_radius=4.0, layers=2)
-    from clrecon.methods.splat import _layer_params
+    from clrecon.methods.splat.layers import layer_params
 
     # bin and draw again (the run left the bins consumed, i.e. zero) and sum every level's
     # coverage before the upsampling, which fills only the frame region
     img = np.empty(pipe.geometry.pixels * 4, np.float32)
     cl.enqueue_fill_buffer(device.queue, pipe.buffers["mip_image"], np.float32(0), 0,
                            pipe.geometry.image_bytes)
-    inv_far, scale = _layer_params(buf.inspect(), pipe.layers)
+    inv_far, scale = layer_params(buf.inspect(), pipe.layers)
     s = DeviceSamples.upload(device.queue, buf, pipe.fields)
     pipe.mip.bin(device.queue, s, inv_far, scale, pipe.buffers["mip_bins"])
     pipe.mip.draw(device.queue, pipe.buffers["mip_bins"], pipe.buffers["mip_image"])

@@ -3,38 +3,28 @@ layers, fast track, on frames with defocus and motion."""
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 import pytest
 from conftest import assert_close
-from splat_frames import frame
+from splat_frames import frame, reference_splat, splat_layers
 
-from clrecon.core.pipeline import DeviceSamples, make_pipeline
-from clrecon.methods.splat import reference as ref
+from clrecon.api import make_pipeline
 
 
 def run_splat(device, buf, **knobs):
     pipe = make_pipeline("splat", device.context, buf.inspect(), **knobs, safeguard=False,
                          mip_radius=0)
-    q = device.queue
-    samples = DeviceSamples.upload(q, buf, pipe.fields)
-    size = pipe.layers * pipe.shape[0] * pipe.shape[1] * 16
-    evs = [cl.enqueue_fill_buffer(q, b, np.float32(0), 0, size) for b in {pipe.lap, pipe.direct}]
-    pipe.splat(q, samples, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad,
-               pipe.reach, pipe.lap, pipe.direct, evs, pipe.shift)
-    shape = (pipe.layers, *pipe.shape, 4)
-    lap, direct = np.empty(shape, np.float32), np.empty(shape, np.float32)
-    cl.enqueue_copy(q, lap, pipe.lap)
-    cl.enqueue_copy(q, direct, pipe.direct)
-    q.finish()
-    return pipe, lap, direct
+    return (pipe, *splat_layers(device, pipe, buf))
 
 
-def reference_splat(pipe, buf):
-    t = pipe.table
-    inv_near = pipe.inv_far + pipe.layers / pipe.layer_scale if pipe.layer_scale else pipe.inv_far
-    return ref.splat(buf, t.as_tuple(), t.model.cell_of, pipe.layers, (pipe.inv_far, inv_near),
-                     pipe.pad, pipe.reach, t.fast.astype(bool), rotate=len(t.model.n) == 2,
-                     smax=t.model.smax)
+def assert_layers_match(pipe, buf, lap, direct, laplacian: bool = True):
+    """Both layer images (``laplacian=False``: the direct one only) equal the reference's,
+    within 1e-6 of the largest |value|; returns the reference's."""
+    want_lap, want_direct = reference_splat(pipe, buf)
+    scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
+    if laplacian:
+        assert_close(lap, want_lap, rtol=1e-4, atol=1e-6 * scale, what="laplacian")
+    assert_close(direct, want_direct, rtol=1e-4, atol=1e-6 * scale, what="direct")
+    return want_lap, want_direct
 
 
 @pytest.mark.parametrize("scatter", ["atomic", "tiles"])
@@ -50,13 +40,11 @@ def test_splat_matches_reference(device, rng, knobs, motion, scatter):
     knobs = dict(knobs, scatter=scatter)
     buf = frame(rng, h=40, w=37, s=2, motion=motion)  # several owner tiles per phase
     pipe, lap, direct = run_splat(device, buf, **knobs)
-    want_lap, want_direct = reference_splat(pipe, buf)
-    scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
+    dense = bool(knobs.get("dense"))
+    want_lap, want_direct = assert_layers_match(pipe, buf, lap, direct, laplacian=not dense)
     assert np.abs(want_direct).max() > 0, "the fast track must be exercised"
-    if not knobs.get("dense"):
+    if not dense:
         assert np.abs(want_lap).max() > 0, "spreadlets must be exercised"
-        assert_close(lap, want_lap, rtol=1e-4, atol=1e-6 * scale, what="laplacian")
-    assert_close(direct, want_direct, rtol=1e-4, atol=1e-6 * scale, what="direct")
 
 
 def test_lookup_matches_nested_grid(device, rng):
@@ -82,10 +70,7 @@ def test_motion_beyond_the_table_is_clamped(device, rng):
     buf.motion[:] = rng.normal(0, 700.0, buf.motion.shape)
     pipe, lap, direct = run_splat(device, buf, psf="combined", layers=1)
     assert pipe.pad <= 2 * pipe.reach + 2 < buf.inspect().max_abs_motion / 2
-    want_lap, want_direct = reference_splat(pipe, buf)
-    scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
-    assert_close(lap, want_lap, rtol=1e-4, atol=1e-6 * scale, what="laplacian")
-    assert_close(direct, want_direct, rtol=1e-4, atol=1e-6 * scale, what="direct")
+    assert_layers_match(pipe, buf, lap, direct)
 
 
 @pytest.mark.parametrize("phases", [2, 3, 5])
@@ -99,21 +84,8 @@ def test_owner_tiles_cover_every_sample_once(device, rng, phases):
     pipe.splat.phases = phases
     tile = pipe.splat.tile_size(pipe.reach, pipe.shift, phases)
     assert -(-160 // tile) >= 2 * phases, "several tiles per phase and row"
-    q = device.queue
-    samples = DeviceSamples.upload(q, buf, pipe.fields)
-    size = pipe.layers * pipe.shape[0] * pipe.shape[1] * 16
-    evs = [cl.enqueue_fill_buffer(q, b, np.float32(0), 0, size) for b in {pipe.lap, pipe.direct}]
-    pipe.splat(q, samples, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad,
-               pipe.reach, pipe.lap, pipe.direct, evs, pipe.shift)
-    shape = (pipe.layers, *pipe.shape, 4)
-    lap, direct = np.empty(shape, np.float32), np.empty(shape, np.float32)
-    cl.enqueue_copy(q, lap, pipe.lap)
-    cl.enqueue_copy(q, direct, pipe.direct)
-    q.finish()
-    want_lap, want_direct = reference_splat(pipe, buf)
-    scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
-    assert_close(lap, want_lap, rtol=1e-4, atol=1e-6 * scale, what="laplacian")
-    assert_close(direct, want_direct, rtol=1e-4, atol=1e-6 * scale, what="direct")
+    lap, direct = splat_layers(device, pipe, buf)
+    assert_layers_match(pipe, buf, lap, direct)
 
 
 @pytest.mark.parametrize("scatter", ["atomic", "tiles"])
@@ -127,8 +99,5 @@ def test_long_motion_sub_segments_match_reference(device, rng, scatter):
     buf.motion[long] = np.stack([length * np.cos(ang), length * np.sin(ang)], -1)[long]
     pipe, lap, direct = run_splat(device, buf, psf="combined", layers=2, scatter=scatter)
     assert pipe.describe()["motion_split"] == 3
-    want_lap, want_direct = reference_splat(pipe, buf)
-    scale = float(np.abs(want_direct).max() + np.abs(want_lap).max())
+    want_lap, want_direct = assert_layers_match(pipe, buf, lap, direct)
     assert np.abs(want_direct).max() > 0 and np.abs(want_lap).max() > 0
-    assert_close(lap, want_lap, rtol=1e-4, atol=1e-6 * scale, what="laplacian")
-    assert_close(direct, want_direct, rtol=1e-4, atol=1e-6 * scale, what="direct")

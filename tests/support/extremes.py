@@ -18,7 +18,9 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+import pytest
 
+import clrecon
 from clrecon.core.camera import CocModel
 from clrecon.core.samples import SampleBuffer
 
@@ -142,3 +144,23 @@ def check_output(image: np.ndarray, buf: SampleBuffer, flat: bool, what: str,
         rel = np.abs(mean / FLAT - 1)
         assert (rel <= 0.01).all(), f"{what}: flat-field mean {mean} vs {FLAT} " \
                                     f"(relative error {rel.max():.3%})"
+
+
+def method_extremes_test(method: str, variants: list[dict], ids: list[str],
+                         convex: bool = False, also: Callable | None = None) -> Callable:
+    """The extremes test of ``method``: every case, knob variant and textured/flat frame,
+    reconstructed without the safeguard and held to :func:`check_output`; ``also(img, buf,
+    knobs, what)`` adds a method's own checks. Bind it to a ``test_*`` name in the method's
+    suite."""
+    @pytest.mark.parametrize("flat", [False, True], ids=["textured", "flat"])
+    @pytest.mark.parametrize("knobs", variants, ids=ids)
+    @pytest.mark.parametrize("case", CASES, ids=IDS)
+    def test(device, case, knobs, flat):
+        buf = make_frame(case, flat)
+        img = clrecon.reconstruct(buf, method, device, **knobs, safeguard=False)
+        what = f"{method} {knobs}/{case.name}"
+        check_output(img, buf, flat, what, convex=convex)
+        if also is not None:
+            also(img, buf, knobs, what)
+
+    return test

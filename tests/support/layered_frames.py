@@ -3,13 +3,14 @@ from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
+from sample_frames import disc_points
 
 from clrecon.core.camera import CocModel
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import SampleBuffer
-from clrecon.methods.layered import reference as ref
+from clrecon.methods.layered import layout as geom
 
-LAY = ref.Layout(tile=16, nbuckets=32, maxp=4, gmax=8, spp=4, has_motion=True, reach_max=48)
+LAYOUT = geom.Layout(tile=16, nbuckets=32, maxp=4, gmax=8, spp=4, has_motion=True, reach_max=48)
 
 
 def frame(rng, h=37, w=35, s=4, motion=True, misses=True, aperture=8.0):
@@ -21,9 +22,7 @@ def frame(rng, h=37, w=35, s=4, motion=True, misses=True, aperture=8.0):
     buf.depth[:] = rng.choice(layers, buf.depth.shape) * rng.uniform(0.98, 1.02, buf.depth.shape)
     if misses:
         buf.depth[rng.uniform(size=buf.depth.shape) < 0.08] = np.inf
-    r = np.sqrt(rng.uniform(0, 1, buf.depth.shape))
-    a = rng.uniform(0, 2 * np.pi, buf.depth.shape)
-    buf.lens[:] = np.stack([r * np.cos(a), r * np.sin(a)], -1)
+    buf.lens[:] = disc_points(rng, buf.depth.shape)
     buf.time[:] = rng.uniform(0, 1, buf.time.shape)
     buf.color[:] = rng.exponential(1.0, buf.color.shape)
     if motion:
@@ -33,10 +32,10 @@ def frame(rng, h=37, w=35, s=4, motion=True, misses=True, aperture=8.0):
     return buf.validate()
 
 
-def kabc(buf, lay=LAY, bucket_coc=0.5):
+def bucket_coeffs(buf, layout=LAYOUT, bucket_coc=0.5):
     info = buf.inspect()
-    return ref.bucket_params(buf.coc_model.c0, buf.coc_model.c1, info.min_depth,
-                             info.max_depth, lay.nbuckets, bucket_coc)
+    return geom.bucket_params(buf.coc_model.c0, buf.coc_model.c1, info.min_depth,
+                              info.max_depth, layout.nbuckets, bucket_coc)
 
 
 def to_device(queue, array) -> cl.Buffer:

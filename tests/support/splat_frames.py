@@ -1,10 +1,14 @@
-"""Frames shared by the splat tests."""
+"""Frames, the splat pass's run on its own and its reference, shared by the splat tests."""
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
+from sample_frames import disc_points
 
 from clrecon.core.camera import CocModel
+from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import SampleBuffer
+from clrecon.methods.splat import reference as ref
 
 
 def frame(rng, h=11, w=13, s=4, motion=True, aperture=8.0, misses=True):
@@ -15,12 +19,35 @@ def frame(rng, h=11, w=13, s=4, motion=True, aperture=8.0, misses=True):
     buf.depth[:] = rng.uniform(2.2, 40.0, buf.depth.shape)
     if misses:
         buf.depth[rng.uniform(size=buf.depth.shape) < 0.1] = np.inf
-    r = np.sqrt(rng.uniform(0, 1, (h, w, s)))
-    a = rng.uniform(0, 2 * np.pi, (h, w, s))
-    buf.lens[:] = np.stack([r * np.cos(a), r * np.sin(a)], -1)
+    buf.lens[:] = disc_points(rng, (h, w, s))
     buf.time[:] = rng.uniform(0, 1, buf.time.shape)
     buf.color[:] = rng.exponential(1.0, buf.color.shape)
     if motion:
         moving = rng.uniform(size=buf.depth.shape) < 0.5
         buf.motion[:] = np.where(moving[..., None], rng.normal(0, 8.0, buf.motion.shape), 0.0)
     return buf.validate()
+
+
+def splat_layers(device, pipe, buf) -> tuple[np.ndarray, np.ndarray]:
+    """The splat pass of ``pipe`` alone on ``buf``: its (laplacian, direct) layer images."""
+    q = device.queue
+    samples = DeviceSamples.upload(q, buf, pipe.fields)
+    size = pipe.layers * pipe.shape[0] * pipe.shape[1] * 16
+    evs = [cl.enqueue_fill_buffer(q, b, np.float32(0), 0, size) for b in {pipe.lap, pipe.direct}]
+    pipe.splat(q, samples, pipe.device_table, pipe.inv_far, pipe.layer_scale, pipe.pad,
+               pipe.reach, pipe.lap, pipe.direct, evs, pipe.shift)
+    shape = (pipe.layers, *pipe.shape, 4)
+    lap, direct = np.empty(shape, np.float32), np.empty(shape, np.float32)
+    cl.enqueue_copy(q, lap, pipe.lap)
+    cl.enqueue_copy(q, direct, pipe.direct)
+    q.finish()
+    return lap, direct
+
+
+def reference_splat(pipe, buf) -> tuple[np.ndarray, np.ndarray]:
+    """The NumPy reference of the splat pass with ``pipe``'s table, layers, pad and reach."""
+    t = pipe.table
+    inv_near = pipe.inv_far + pipe.layers / pipe.layer_scale if pipe.layer_scale else pipe.inv_far
+    return ref.splat(buf, t.as_tuple(), t.model.cell_of, pipe.layers, (pipe.inv_far, inv_near),
+                     pipe.pad, pipe.reach, t.fast.astype(bool), rotate=len(t.model.n) == 2,
+                     smax=t.model.smax)

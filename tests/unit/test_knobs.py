@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 import clrecon
+from clrecon.api import METHODS, make_pipeline
 from clrecon.core import device as cldev
 from clrecon.core.camera import CocModel
 from clrecon.core.knobs import KnobTypeError, check_float, check_int
-from clrecon.core.pipeline import METHODS, LocalSize, _load_methods, make_pipeline
+from clrecon.core.local_size import LocalSize
 from clrecon.core.samples import SampleBuffer
 from clrecon.methods.box import Box
 from clrecon.methods.sweep import max_exponent
@@ -90,7 +91,6 @@ def frame():
 
 def test_every_knob_is_covered():
     """A knob added to a method's constructor must get bad values here."""
-    _load_methods()
     for name, cls in METHODS.items():
         params = set(inspect.signature(cls.__init__).parameters) - {"self", "context", "info"}
         assert params == set(BAD[name]), f"{name}: knobs without bad values: " \

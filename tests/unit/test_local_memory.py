@@ -12,7 +12,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from conftest import assert_close
-from test_sweep import frame
+from sweep_frames import frame
 
 from clrecon.core import device as cldev
 from clrecon.core.pipeline import DeviceSamples
@@ -179,9 +179,9 @@ def test_built_kernel_over_local_memory_is_refused(device):
 
 
 def test_integrate_ring_launches_with_the_fitted_group(device):
-    from clrecon.methods.splat.integrate import Integrate
+    from clrecon.methods.splat.integrate import SplatIntegrate
 
-    integ = Integrate(device.context, 12, 10)
+    integ = SplatIntegrate(device.context, 12, 10)
     wg = integ.ring_wg
     assert wg == ring_group(device.device) and wg & (wg - 1) == 0
     info = cl.kernel_work_group_info

@@ -61,13 +61,14 @@ def _quick_device() -> cldev.DeviceInfo:
 
 def test_device_option_runs_only_the_matching_devices():
     dev = _quick_device()
-    res = _pytest("tests/test_platforms.py::test_device_option_reaches_get_device",
-                  "tests/test_scenes.py::test_samples_are_stratified", "--device", str(dev.index))
+    res = _pytest("tests/unit/test_platforms.py::test_device_option_reaches_get_device",
+                  "tests/unit/test_scenes.py::test_samples_are_stratified",
+                  "--device", str(dev.index))
     assert res.returncode == 0, res.stdout + res.stderr
     assert "2 passed" in res.stdout, res.stdout
     # a name substring: every device whose label holds it, and no other
     word = dev.platform.split()[0]
-    res = _pytest("--collect-only", "tests/test_scenes.py::test_samples_are_stratified",
+    res = _pytest("--collect-only", "tests/unit/test_scenes.py::test_samples_are_stratified",
                   "--device", word)
     assert res.returncode == 0, res.stdout + res.stderr
     ids = {line.split("[", 1)[1].split(":", 1)[0] for line in res.stdout.splitlines()
@@ -77,7 +78,7 @@ def test_device_option_runs_only_the_matching_devices():
 
 
 def test_device_option_matching_nothing_is_a_usage_error():
-    res = _pytest("--collect-only", "tests/test_scenes.py", "--device", "no such device 42")
+    res = _pytest("--collect-only", "tests/unit/test_scenes.py", "--device", "no such device 42")
     assert res.returncode == 4, res.stdout + res.stderr
     assert "--device 'no such device 42' matches no OpenCL device" in res.stderr, res.stderr
 

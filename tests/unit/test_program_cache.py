@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from clrecon.core import device as cldev
+from clrecon.core import program_cache as pcache
 
 # Builds one small program (with a define and an include) in a fresh process, runs it and
 # reports the cache counters and whether the kernel computed the right thing.
@@ -88,7 +89,7 @@ def test_truncated_entry_falls_back_to_source(tmp_path):
     again = _child(cache)
     assert again["ok"]
     assert again["stats"] == _stats(misses=1, writes=1, errors=1)
-    assert cldev._read_entry(entry)  # rewritten whole
+    assert pcache._read_entry(entry)  # rewritten whole
     assert _child(cache)["stats"] == _stats(hits=1)
 
 
@@ -97,7 +98,7 @@ def test_corrupt_entry_falls_back_to_source(tmp_path, how):
     cache = tmp_path / "programs"
     _child(cache)
     (entry,) = _entries(cache)
-    magic = cldev._CACHE_MAGIC
+    magic = pcache._CACHE_MAGIC
     if how == "empty":
         entry.write_bytes(b"")
     elif how == "header-only":
@@ -149,7 +150,7 @@ def test_default_location_follows_xdg_then_home(tmp_path):
     out = _child(None, **env)
     assert out["ok"] and out["dir"] == str(tmp_path / "xdg" / "clrecon" / "programs")
     # without CLRECON_CACHE_DIR a PoCL device leaves caching to PoCL's own kernel cache
-    own = not cldev._self_caching(cldev.get_device().context.devices[0])
+    own = not pcache._self_caching(cldev.get_device().context.devices[0])
     assert len(_entries(tmp_path / "xdg")) == int(own)
 
 
@@ -184,14 +185,14 @@ def test_multi_device_context_keys_each_device(monkeypatch, tmp_path):
     devs = [NS(platform=plat, name=n, driver_version="7", version="OpenCL 3.0")
             for n in ("gpu-a", "gpu-b", "gpu-a")]
     monkeypatch.setenv(cldev.ENV_CACHE_DIR, str(tmp_path))
-    entries = cldev._cache_entries(NS(devices=devs), "src", "hdr", ["-DA=1"])
+    entries = pcache.cache_entries(NS(devices=devs), "src", "hdr", ["-DA=1"])
     paths = [p for _, p in entries]
     assert [d for d, _ in entries] == devs
     assert paths[0] != paths[1] and paths[0] == paths[2]  # same identity, same binary
     assert all(p.parent == tmp_path and p.suffix == ".clbin" for p in paths)
-    other = cldev._cache_entries(NS(devices=devs), "src", "hdr", ["-DA=2"])
+    other = pcache.cache_entries(NS(devices=devs), "src", "hdr", ["-DA=2"])
     assert not {p for _, p in other} & set(paths)
     newer = [NS(platform=plat, name="gpu-a", driver_version="8", version="OpenCL 3.0")]
-    assert cldev._cache_entries(NS(devices=newer), "src", "hdr", ["-DA=1"])[0][1] != paths[0]
+    assert pcache.cache_entries(NS(devices=newer), "src", "hdr", ["-DA=1"])[0][1] != paths[0]
     monkeypatch.setenv(cldev.ENV_CACHE_DIR, "off")
-    assert cldev._cache_entries(NS(devices=devs), "src", "hdr", ["-DA=1"]) is None
+    assert pcache.cache_entries(NS(devices=devs), "src", "hdr", ["-DA=1"]) is None

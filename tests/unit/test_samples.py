@@ -6,6 +6,7 @@ import re
 import numpy as np
 import pytest
 from conftest import assert_close
+from sample_frames import random_frame
 
 from clrecon.core.camera import CocModel
 from clrecon.core.samples import FIELDS, MISS_DEPTH, SampleBuffer, pixel_centres
@@ -16,25 +17,13 @@ MODEL = CocModel.from_focus(aperture_px=6.0, focus_depth=2.0)
 
 def _valid_buffer(rng, h=H, w=W, s=S, coc_model=MODEL) -> SampleBuffer:
     """A random buffer that satisfies every documented constraint."""
-    hws = (h, w, s)
-    py, px = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
-    position = np.stack([px, py], -1)[:, :, None, :] + rng.uniform(0.0, 1.0, hws + (2,))
-    r = np.sqrt(rng.uniform(0.0, 1.0, hws))
-    phi = rng.uniform(0.0, 2 * np.pi, hws)
-    lens = np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
-    depth = rng.uniform(0.5, 20.0, hws)
-    depth[rng.uniform(size=hws) < 0.2] = np.inf
-    depth.flat[0] = np.inf  # at least one miss
-    return SampleBuffer(
-        color=rng.exponential(3.0, hws + (3,)) * (rng.uniform(size=hws + (1,)) < 0.1) * 100
-        + rng.uniform(0.0, 1.0, hws + (3,)),
-        position=position,
-        depth=depth,
-        lens=lens,
-        time=rng.uniform(0.0, 1.0, hws),
-        motion=rng.normal(0.0, 4.0, hws + (2,)),
-        coc_model=coc_model,
-    )
+    def hdr(rng, hws):  # a tenth of the samples far above 1
+        return (rng.exponential(3.0, hws + (3,)) * (rng.uniform(size=hws + (1,)) < 0.1) * 100
+                + rng.uniform(0.0, 1.0, hws + (3,)))
+
+    buf = random_frame(rng, h, w, s, 0.2, coc_model, (0.5, 20.0), hdr)
+    buf.depth.flat[0] = np.inf  # at least one miss
+    return buf
 
 
 def _first(name: str, y: int, x: int, i: int) -> str:

@@ -1,5 +1,5 @@
 """The tuner on real OpenCL devices: specs build and verify, failures are data, and the
-run-time lookup feeds the pipelines (the search logic itself: tests/test_tune_logic.py)."""
+run-time lookup feeds the pipelines (the search logic itself: tests/unit/test_tune_logic.py)."""
 from __future__ import annotations
 
 import json
@@ -9,9 +9,9 @@ import pytest
 import clrecon
 from clrecon.core.device import source_hash
 from clrecon.tune import db
+from clrecon.tune.runners import DEFAULTS, SPECS, synthetic_frame
 from clrecon.tune.runtime import tuned
 from clrecon.tune.session import tune_device
-from clrecon.tune.specs import DEFAULTS, SPECS, synthetic_frame
 from clrecon.tune.tuner import tune
 
 
@@ -83,7 +83,7 @@ def test_pipelines_report_where_their_configuration_came_from(device, monkeypatc
 
 def test_lookup_levels_for_this_device(device):
     info = synthetic_frame(8, 8, 2).inspect()
-    found = tuned(device.context, "sweep_prepare", info)
+    found = tuned(device.context, SPECS["sweep_prepare"].tunable, info)
     assert found.source in {"exact", "vendor", "default", "runtime"}
     assert found.config is None or set(found.config) == {"wg_x", "wg_y"}
 
@@ -94,9 +94,9 @@ def test_unknown_pass_is_an_error(device):
 
 
 def test_multi_kernel_passes_are_timed_whole(device):
-    """integrate enqueues one kernel per pyramid level: the runner's time is their sum, not
+    """splat_integrate enqueues one kernel per pyramid level: the runner's time is their sum, not
     the last kernel's (which alone took ~0.02 ms and would decide the tuning)."""
-    runner = SPECS["integrate"].runner(device, 96, 64, 4)
+    runner = SPECS["splat_integrate"].runner(device, 96, 64, 4)
     handle = runner.build(None)
     _, ms = runner.run(handle)
     events = handle.events

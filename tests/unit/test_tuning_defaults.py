@@ -12,8 +12,8 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from conftest import assert_close
+from sweep_frames import frame
 from test_local_memory import sweep_image
-from test_sweep import frame
 
 import clrecon
 from clrecon.core import device as cldev
@@ -21,8 +21,8 @@ from clrecon.core.device import source_hash
 from clrecon.core.resources import tuning_dir
 from clrecon.methods.sweep import reference as ref
 from clrecon.tune import db
+from clrecon.tune.runners import DEFAULTS, GPU_DEFAULTS, SPECS, synthetic_frame
 from clrecon.tune.runtime import default_config, fit_config, resolve, tuned
-from clrecon.tune.specs import DEFAULTS, GPU_DEFAULTS, SPECS, synthetic_frame
 
 _TEMPLATE = cldev.list_devices()[0]
 
@@ -57,7 +57,7 @@ def _clean(monkeypatch):
 
 @pytest.mark.parametrize("name", sorted(SPECS))
 def test_gpu_defaults_are_gpu_shaped(name):
-    cfg = default_config(name, fake("GPU"))
+    cfg = default_config(SPECS[name].tunable, fake("GPU"))
     assert cfg == GPU_DEFAULTS[name]
     n = items(cfg)
     assert 64 <= n <= 256 and n % 32 == 0, f"{name}: {cfg} is {n} work-items a group"
@@ -75,14 +75,15 @@ def test_gpu_defaults_differ_where_the_cpu_defaults_are_not_gpu_shaped():
 @pytest.mark.parametrize("name", sorted(SPECS))
 def test_other_devices_get_the_spec_default(name):
     for kind in ("CPU", "ACCELERATOR", "OTHER"):
-        assert default_config(name, fake(kind, max_wg=8192)) == SPECS[name].default
+        assert default_config(SPECS[name].tunable, fake(kind, max_wg=8192)) == \
+            SPECS[name].default
 
 
 @pytest.mark.parametrize("max_wg", [1, 16, 32, 48, 64, 100])
 def test_defaults_fit_the_device_max_work_group_size(max_wg):
     for name in SPECS:
         for kind in ("GPU", "CPU"):
-            cfg = default_config(name, fake(kind, max_wg))
+            cfg = default_config(SPECS[name].tunable, fake(kind, max_wg))
             assert 1 <= items(cfg) <= max_wg, (name, kind, cfg)
 
 
@@ -101,11 +102,12 @@ def test_chain_on_a_fake_gpu(tmp_path, monkeypatch):
     """No entry: the GPU default; an entry of a sibling GPU (same vendor and type) with a
     larger group than this one takes: fitted; an environment override: as given."""
     gpu = fake("GPU", max_wg=256)
+    reproject, box = SPECS["reproject"].tunable, SPECS["box"].tunable
     digest = source_hash("reproject")
-    found = resolve(gpu, "reproject", "s-hi", digest, root=tmp_path)
+    found = resolve(gpu, reproject, "s-hi", digest, root=tmp_path)
     assert found == db.Lookup({"wg_x": 64, "wg_y": 1}, "default", None)
     cpu = fake("CPU")
-    assert resolve(cpu, "reproject", "s-hi", digest, root=tmp_path).config == \
+    assert resolve(cpu, reproject, "s-hi", digest, root=tmp_path).config == \
         {"wg_x": 1, "wg_y": 1}
 
     sibling = dataclasses.replace(gpu, name="fake GPU, larger", max_work_group_size=1024)
@@ -115,11 +117,11 @@ def test_chain_on_a_fake_gpu(tmp_path, monkeypatch):
              "best": {"wg_x": 32, "wg_y": 32}}
     path.write_text(json.dumps({"schema": db.SCHEMA_VERSION, "device": sibling.fingerprint(),
                                 "entries": {"box|s-hi": entry}}))
-    found = resolve(gpu, "box", "s-hi", source_hash("box"), root=tmp_path)
+    found = resolve(gpu, box, "s-hi", source_hash("box"), root=tmp_path)
     assert found.source == "vendor" and found.config == {"wg_x": 32, "wg_y": 8}
 
     monkeypatch.setenv(db.env_var("box"), '{"wg_x": 64, "wg_y": 16}')
-    assert resolve(gpu, "box", "s-hi", source_hash("box"), root=tmp_path) == \
+    assert resolve(gpu, box, "s-hi", source_hash("box"), root=tmp_path) == \
         db.Lookup({"wg_x": 64, "wg_y": 16}, "env", None)
 
 
@@ -139,7 +141,7 @@ def test_committed_entries_resolve_without_error(caplog):
         for key, entry in data["entries"].items():
             digest = source_hash(SPECS[entry["pass"]].kernel_file)
             with caplog.at_level(logging.WARNING, logger="clrecon"):
-                found = resolve(info, entry["pass"], entry["bucket"], digest)
+                found = resolve(info, SPECS[entry["pass"]].tunable, entry["bucket"], digest)
             if entry["source_hash"] == digest:
                 assert found.source == "exact", key
             else:
@@ -153,14 +155,15 @@ def test_this_device_gets_the_default_of_its_type(device, tmp_path):
     configuration is the default for the device's type, fitted to it."""
     info = device.info
     for name in SPECS:
-        found = resolve(info, name, "s-hi", source_hash(SPECS[name].kernel_file), root=tmp_path)
+        found = resolve(info, SPECS[name].tunable, "s-hi", source_hash(SPECS[name].kernel_file),
+                        root=tmp_path)
         assert found.source == "default"
         want = (GPU_DEFAULTS if info.device_type == "GPU" else DEFAULTS)[name]
         assert found.config == fit_config(want, info.max_work_group_size)
     frame = synthetic_frame(8, 6, 2).inspect()
-    got = tuned(device.context, "reproject", frame)
+    got = tuned(device.context, SPECS["reproject"].tunable, frame)
     if got.source == "default":
-        assert got.config == default_config("reproject", info)
+        assert got.config == default_config(SPECS["reproject"].tunable, info)
 
 
 def test_gpu_defaults_run_and_match_the_reference(device, rng):
@@ -169,28 +172,28 @@ def test_gpu_defaults_run_and_match_the_reference(device, rng):
     buf = frame(rng, h=9, w=10, s=2)
     res = clrecon.run(buf, "box", device)
     if res.method["tuning"]["box"] == "default":
-        cfg = default_config("box", device.info)
+        cfg = default_config(SPECS["box"].tunable, device.info)
         assert res.method["local_size"] == [cfg["wg_x"], cfg["wg_y"]]
     assert_close(res.image, buf.color.astype(np.float64).mean(axis=2), rtol=1e-5, what="box")
     how, img = sweep_image(device, buf, specialize=False)
     if how["sort"] == "tile" and how["tuning"].get("sweep_resolve") == "default":
-        assert how["tile"] == default_config("sweep_resolve", device.info)["tile"]
+        assert how["tile"] == default_config(SPECS["sweep_resolve"].tunable, device.info)["tile"]
     assert_close(img, ref.reconstruct(buf), rtol=2e-4, atol=2e-5, what="sweep")
 
 
 def test_local_size_candidates_share_one_program(device):
     """The local size of these passes is a launch parameter only: the pass built for two
     local sizes (two tuning candidates) uses one program, built once, not one per size."""
-    from clrecon.core.pipeline import LocalSize
-    from clrecon.methods.layered.composite import Composite
+    from clrecon.core.local_size import LocalSize
+    from clrecon.methods.layered.composite import LayeredComposite
     from clrecon.methods.layered.filter_mip import FilterMip
     from clrecon.methods.layered.filter_rotated import FilterRotated
     from clrecon.methods.layered.filter_sheared import FilterSheared
+    from clrecon.methods.layered.layout import Layout
     from clrecon.methods.layered.partition_setup import PartitionSetup
-    from clrecon.methods.layered.reference import Layout
     from clrecon.methods.layered.tile_stats import TileStats
-    from clrecon.methods.splat.composite import Composite as SplatComposite
-    from clrecon.methods.splat.integrate import Integrate
+    from clrecon.methods.splat.composite import SplatComposite
+    from clrecon.methods.splat.integrate import SplatIntegrate
     from clrecon.methods.sweep.layers import SweepLayerResolve, SweepLayerSums
     from clrecon.methods.sweep.prepare import SweepPrepare
     from clrecon.methods.sweep.resolve import SweepResolve
@@ -206,8 +209,8 @@ def test_local_size_candidates_share_one_program(device):
         "filter_sheared": lambda loc: FilterSheared(ctx, lay, 3, loc),
         "filter_rotated": lambda loc: FilterRotated(ctx, lay, loc),
         "filter_mip": lambda loc: FilterMip(ctx, lay, loc),
-        "composite": lambda loc: Composite(ctx, lay, loc),
-        "integrate": lambda loc: Integrate(ctx, 12, 10, "f5", loc),
+        "layered_composite": lambda loc: LayeredComposite(ctx, lay, loc),
+        "splat_integrate": lambda loc: SplatIntegrate(ctx, 12, 10, "f5", loc),
         "splat_composite": lambda loc: SplatComposite(ctx, 2, True, loc),
     }
     for name, make in passes.items():

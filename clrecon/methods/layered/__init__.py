@@ -6,8 +6,9 @@ Plan (passes; knobs in brackets)::
     tile_stats [tile, stats_stride, seed, bucket_coc]
       -> partition_setup [merge_threshold, sigma_x, max_partitions, guard, reach]
       -> reproject [splat, subsample]
-      -> filter_sheared (x, y) [recursions] | filter_mip (build, sample) | filter_rotated (u, v)
-      -> composite
+      -> filter_sheared (recursive, gauss) [recursions] | filter_mip (build, sample)
+         | filter_rotated (u, v)
+      -> layered_composite
 
 Modes: ``practical`` (default: sparse statistics, every ``3 * spp``-th sample; layer
 merging at 10%; ``filter="sheared"`` or ``"mip"``) and ``lrdm`` (full statistics, no
@@ -94,24 +95,30 @@ import pyopencl as cl
 
 from clrecon.core.fixed import BOUND_BYTES
 from clrecon.core.knobs import check_bool, check_choice, check_float, check_int
-from clrecon.core.pipeline import DeviceSamples, LocalSize, Pipeline, register
+from clrecon.core.local_size import LocalSize
+from clrecon.core.pipeline import DeviceSamples, Pipeline, register
 from clrecon.core.plan import Bound, Plan, Step, coc_bound, motion_bound, shape_bounds
-from clrecon.methods.layered.composite import Composite
+from clrecon.methods.box import Box, box_plan
+from clrecon.methods.layered.composite import LayeredComposite
 from clrecon.methods.layered.filter_mip import FilterMip, atlas_layout
 from clrecon.methods.layered.filter_rotated import FilterRotated
 from clrecon.methods.layered.filter_sheared import FilterSheared
-from clrecon.methods.layered.partition_setup import PartitionSetup
-from clrecon.methods.layered.reference import (
+from clrecon.methods.layered.layout import (
     NCH,
     NPAR,
     NSTAT,
+    SUBSAMPLE_DEFAULT,
     Layout,
     bucket_params,
     mip_levels,
     subsample_cap,
 )
+from clrecon.methods.layered.partition_setup import PartitionSetup
 from clrecon.methods.layered.reproject import Reproject
 from clrecon.methods.layered.tile_stats import TileStats
+from clrecon.tune.local import local_size_of
+from clrecon.tune.runtime import tuned
+from clrecon.tune.tunable import Tunable
 
 MODES = ("practical", "lrdm")
 FILTERS = ("sheared", "mip", "rotated")
@@ -143,7 +150,7 @@ class LayeredPipeline(Pipeline):
                  max_partitions: int = 4, guard: int = 16, bucket_coc: float = 0.5,
                  splat: str = "nearest", seed: int = 0, has_motion: bool | None = None,
                  recursions: int = 3, specialize: bool = True, reach: int = 96,
-                 subsample: int | bool = True, mip_images: bool | None = None,
+                 subsample: int | bool = SUBSAMPLE_DEFAULT, mip_images: bool | None = None,
                  deterministic: bool = False):
         super().__init__(context, info)
         mode = check_choice("mode", mode, MODES)
@@ -169,12 +176,12 @@ class LayeredPipeline(Pipeline):
         recursions = check_int("recursions", recursions, 1, 4)
         specialize = check_bool("specialize", specialize)
         reach = check_int("reach", reach, 1, MAX_REACH)
-        subsample_cap(subsample)  # true, false or an int in [1, 64]
+        subsample = subsample_cap(subsample)  # false or an int in [1, 64]
         mip_images = check_bool("mip_images", mip_images, none_ok=True)
         self.deterministic = check_bool("deterministic", deterministic)
         self.fixed = False  # reproject accumulates in fixed point (deterministic, wg_x > 1)
         self.recursions = int(recursions)
-        self.subsample = subsample_cap(subsample)
+        self.subsample = subsample
         if mip_images is not None and filter != "mip":
             raise ValueError(f"mip_images: applies to filter='mip' only, not {filter!r}")
         self.mip_images = None  # filter="mip": whether it reads the image atlas
@@ -184,8 +191,9 @@ class LayeredPipeline(Pipeline):
         motion = info.has_motion if has_motion is None else bool(has_motion)
         # the guard band need not exceed the largest blur the frame can have
         gmax = _guard(info, sigma_x, int(guard))
-        self.lay = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions), gmax=gmax,
-                          spp=info.spp, has_motion=motion, reach_max=int(reach))
+        self.layout = Layout(tile=tile, nbuckets=NBUCKETS, maxp=int(max_partitions),
+                             gmax=gmax, spp=info.spp, has_motion=motion,
+                             reach_max=int(reach))
         # the sample fields the passes read (not self.fields: that is what a caller
         # uploads, set by set_plan, and stale while re-planning)
         self.reads = ("color", "position", "depth", "lens", "time", "motion")
@@ -201,9 +209,7 @@ class LayeredPipeline(Pipeline):
         # reconstruct beyond the pixel filter: it costs, and is, a box filter
         self.box = None
         if specialize and not info.has_motion and info.max_abs_coc < STATIC_COC:
-            from clrecon.methods.box import Box, box_plan
-
-            self.box = Box(context, self._local("box"))
+            self.box = Box(context, self._local(Box.TUNABLE))
             self.set_plan(box_plan("layered", self.box, info, [
                 coc_bound(STATIC_COC, "box plan: every CoC inside the pixel", "<"),
                 motion_bound(0.0, "box plan: a static frame")]))
@@ -213,29 +219,32 @@ class LayeredPipeline(Pipeline):
             bounds.append(Bound("guard_px", "<=", gmax, "guard band sized from the largest "
                                 "blur", lambda i: _guard(i, sx, g), ("depth", "motion")))
         self.bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
-        self.stats_pass = TileStats(context, self.lay, self._local("tile_stats"))
-        self.setup = PartitionSetup(context, self.lay, self._local("partition_setup"))
-        local = self._local("reproject")
+        self.stats_pass = TileStats(context, self.layout, self._local(TileStats.TUNABLE))
+        self.setup = PartitionSetup(context, self.layout, self._local(PartitionSetup.TUNABLE))
+        local = self._local(Reproject.TUNABLE)
         if self.deterministic and local is not None and (local.x or 1) > 1:
             if all("cl_khr_int64_base_atomics" in d.extensions.split()
                    for d in context.devices):
                 self.fixed = True
             else:  # no int64 atomics: the owned grid is deterministic as it is
                 local = LocalSize(1, 1)
-        self.reproject = Reproject(context, self.lay, splat == "bilinear", local,
+        self.reproject = Reproject(context, self.layout, splat == "bilinear", local,
                                    self.subsample, fixed=self.fixed)
         if filter == "sheared":
-            self.filt = FilterSheared(context, self.lay, self.recursions,
-                                      self._local("filter_sheared"))
+            self.filter_pass = FilterSheared(context, self.layout, self.recursions,
+                                             self._local(FilterSheared.TUNABLE))
         elif filter == "mip":
-            ntx, nty = self.lay.tiles(info.width, info.height)
-            nslots = ntx * nty * self.lay.maxp
+            ntx, nty = self.layout.tiles(info.width, info.height)
+            nslots = ntx * nty * self.layout.maxp
             atlas = self._mip_atlas(mip_images, nslots)
             self.mip_images = atlas is not None
-            self.filt = FilterMip(context, self.lay, self._local("filter_mip"), atlas)
+            self.filter_pass = FilterMip(context, self.layout, self._local(FilterMip.TUNABLE),
+                                         atlas)
         else:
-            self.filt = FilterRotated(context, self.lay, self._local("filter_rotated"))
-        self.comp = Composite(context, self.lay, self._local("composite"))
+            self.filter_pass = FilterRotated(context, self.layout,
+                                             self._local(FilterRotated.TUNABLE))
+        self.composite_pass = LayeredComposite(context, self.layout,
+                                               self._local(LayeredComposite.TUNABLE))
         self.set_plan(self._plan(info))
 
     def _mip_atlas(self, want: bool | None, nslots: int) -> dict | None:
@@ -243,7 +252,7 @@ class LayeredPipeline(Pipeline):
         for, or by default on GPUs with image support whose 2D images hold the atlas (on CPUs
         the sampler is software, slower than the buffer variant)."""
         dev = self.context.devices[0]
-        atlas, fits = atlas_layout(dev, self.lay, nslots)
+        atlas, fits = atlas_layout(dev, self.layout, nslots)
         if want is None:
             want = bool(dev.image_support and dev.type & cl.device_type.GPU and fits)
         elif want and not dev.image_support:
@@ -254,50 +263,46 @@ class LayeredPipeline(Pipeline):
                              f"{dev.image2d_max_height})")
         return atlas if want else None
 
-    def _local(self, pass_name: str) -> LocalSize | None:
-        from clrecon.tune.runtime import tuned
-        from clrecon.tune.specs import SPECS, local_size_of
-
-        if pass_name not in SPECS:
-            self.tuning[pass_name] = "builtin"
-            return None
-        found = tuned(self.context, pass_name, self.info)
-        self.tuning[pass_name] = found.source
+    def _local(self, tunable: Tunable) -> LocalSize:
+        """The tuned local size of the pass ``tunable`` declares; its source goes into
+        ``describe()["tuning"]``."""
+        found = tuned(self.context, tunable, self.info)
+        self.tuning[tunable.name] = found.source
         return local_size_of(found.config)
 
     def buffer_sizes(self, width: int, height: int) -> dict[str, int]:
         """Bytes of each temporary this plan allocates for a ``width x height`` frame."""
         if self.box is not None:
             return {}
-        lay = self.lay
-        ntx, nty = lay.tiles(width, height)
-        slots = ntx * nty * lay.maxp
-        sizes = {"stats": ntx * nty * lay.nbuckets * NSTAT * 4,
+        layout = self.layout
+        ntx, nty = layout.tiles(width, height)
+        slots = ntx * nty * layout.maxp
+        sizes = {"stats": ntx * nty * layout.nbuckets * NSTAT * 4,
                  "params": slots * NPAR * 4,
-                 "grids": slots * NCH * lay.dmax ** 2 * 4,
-                 "filtered": slots * NCH * lay.ft ** 2 * 4,
-                 "buckets": Reproject.buckets_bytes(width, height, lay.spp)}
+                 "grids": slots * NCH * layout.dmax ** 2 * 4,
+                 "filtered": slots * NCH * layout.filtered_side ** 2 * 4,
+                 "buckets": Reproject.buckets_bytes(width, height, layout.spp)}
         if self.fixed:
             sizes |= {"grids_fixed": 2 * sizes["grids"], "color_bound": BOUND_BYTES}
         if self.filter == "rotated":
             sizes["tmp"] = sizes["grids"]
         if self.filter == "mip":
-            sizes["pyramid"] = slots * NCH * mip_levels(lay.dmax)[1] * 4
+            sizes["pyramid"] = slots * NCH * mip_levels(layout.dmax)[1] * 4
             if self.mip_images:
-                a = self.filt.atlas
+                a = self.filter_pass.atlas
                 sizes["atlas"] = a["width"] * a["height"] * (16 + 4)  # owned by filter_mip
         return sizes
 
     def _plan(self, info) -> Plan:
         temps = {k: v for k, v in self.buffer_sizes(info.width, info.height).items()
                  if k != "atlas"}  # the atlas is filter_mip's own
-        ntx, nty = self.lay.tiles(info.width, info.height)
-        nslots = ntx * nty * self.lay.maxp
+        ntx, nty = self.layout.tiles(info.width, info.height)
+        nslots = ntx * nty * self.layout.maxp
         fields = self.reads
 
         def stats(queue, f, wait):
-            kabc = self.bucket_params(f.samples, f.info)
-            return [("tile_stats", self.stats_pass(queue, f.samples, kabc, self.stats_stride,
+            coeffs = self.bucket_params(f.samples, f.info)
+            return [("tile_stats", self.stats_pass(queue, f.samples, coeffs, self.stats_stride,
                                                    self.seed, f.buffers["stats"], wait))]
 
         def setup(queue, f, wait):
@@ -307,22 +312,23 @@ class LayeredPipeline(Pipeline):
 
         def reproject(queue, f, wait):
             b = f.buffers
-            kabc = self.bucket_params(f.samples, f.info)
-            self.reproject(queue, f.samples, kabc, b["params"], b["grids"], wait,
+            bucket_coeffs = self.bucket_params(f.samples, f.info)
+            self.reproject(queue, f.samples, bucket_coeffs, b["params"], b["grids"], wait,
                            b.get("grids_fixed"), b.get("color_bound"), b["buckets"])
             return list(self.reproject.events)
 
-        def filt(queue, f, wait):
+        def filter_grids(queue, f, wait):
             b = f.buffers
             work = {"sheared": (), "mip": ("pyramid",), "rotated": ("tmp",)}[self.filter]
-            self.filt(queue, b["params"], b["grids"], *(b[k] for k in work), b["filtered"],
-                      nslots, wait)
-            return list(self.filt.events)
+            self.filter_pass(queue, b["params"], b["grids"], *(b[k] for k in work),
+                             b["filtered"], nslots, wait)
+            return list(self.filter_pass.events)
 
         def composite(queue, f, wait):
             b = f.buffers
-            return [("composite", self.comp(queue, b["color"], b["params"], b["filtered"],
-                                            f.width, f.height, b["out"], wait))]
+            return [("layered_composite", self.composite_pass(queue, b["color"], b["params"],
+                                                              b["filtered"], f.width, f.height,
+                                                              b["out"], wait))]
 
         work = tuple(k for k in ("pyramid", "tmp") if k in temps)
         fixed = ("grids_fixed", "color_bound") if self.fixed else ()
@@ -330,17 +336,18 @@ class LayeredPipeline(Pipeline):
             Step("tile_stats", ("depth",), ("stats",), stats),
             Step("partition_setup", ("stats",), ("params",), setup),
             Step("reproject", fields + ("params",), ("buckets", "grids") + fixed, reproject),
-            Step(f"filter_{self.filter}", ("params", "grids"), work + ("filtered",), filt),
-            Step("composite", ("color", "params", "filtered"), ("out",), composite)),
+            Step(f"filter_{self.filter}", ("params", "grids"), work + ("filtered",),
+                 filter_grids),
+            Step("layered_composite", ("color", "params", "filtered"), ("out",), composite)),
             temps, self.bounds)
 
     def describe(self) -> dict:
         return {"method": "layered", "mode": self.mode, "filter": self.filter,
-                "defocus_only": not self.lay.has_motion,
-                "plan": self.plan.name, "tile": self.lay.tile,
+                "defocus_only": not self.layout.has_motion,
+                "plan": self.plan.name, "tile": self.layout.tile,
                 "stats_stride": self.stats_stride, "merge_threshold": self.merge_threshold,
-                "sigma_x": self.sigma_x, "max_partitions": self.lay.maxp,
-                "guard": self.lay.gmax, "reach": self.lay.reach_max,
+                "sigma_x": self.sigma_x, "max_partitions": self.layout.maxp,
+                "guard": self.layout.gmax, "reach": self.layout.reach_max,
                 "bucket_coc": self.bucket_coc, "splat": self.splat,
                 "subsample": self.subsample, "deterministic": self.deterministic,
                 "accumulation": ("box" if self.box is not None else "fixed point"
@@ -357,5 +364,5 @@ class LayeredPipeline(Pipeline):
         range (a kernel argument, not a bound: any frame gets its own buckets)."""
         info = info or samples.info or self.info
         c0, c1 = samples.coc
-        return bucket_params(c0, c1, info.min_depth, info.max_depth, self.lay.nbuckets,
+        return bucket_params(c0, c1, info.min_depth, info.max_depth, self.layout.nbuckets,
                              self.bucket_coc)

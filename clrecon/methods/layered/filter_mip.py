@@ -6,15 +6,16 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from clrecon.core.pipeline import LocalSize
+from clrecon.core.local_size import LocalSize
+from clrecon.methods.layered.layout import Layout, mip_atlas, mip_levels
 from clrecon.methods.layered.passes import layered_kernel, local_for
-from clrecon.methods.layered.reference import Layout, mip_atlas, mip_levels
+from clrecon.tune.tunable import Tunable, local_candidates
 
 
-def atlas_layout(device: cl.Device, lay: Layout, nslots: int) -> tuple[dict, bool]:
-    """The image atlas for ``nslots`` slots on ``device`` (``reference.mip_atlas``) and
+def atlas_layout(device: cl.Device, layout: Layout, nslots: int) -> tuple[dict, bool]:
+    """The image atlas for ``nslots`` slots on ``device`` (``layout.mip_atlas``) and
     whether it fits the device's 2D image limits."""
-    a = mip_atlas(lay.dmax, mip_levels(lay.dmax)[0], nslots, device.image2d_max_width)
+    a = mip_atlas(layout.dmax, mip_levels(layout.dmax)[0], nslots, device.image2d_max_width)
     return a, a["width"] <= device.image2d_max_width and a["height"] <= device.image2d_max_height
 
 
@@ -25,23 +26,25 @@ class FilterMip:
     instead of ``filter_mip_sample``. Returns the last event; ``events`` has each kernel's."""
 
     name = "filter_mip"
+    TUNABLE = Tunable(name, "filter_mip", {"wg_x": 8, "wg_y": 8}, local_candidates,
+                      rtol=1e-4, atol=1e-5)
 
-    def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None,
+    def __init__(self, context: cl.Context, layout: Layout, local: LocalSize | None = None,
                  atlas: dict | None = None):
-        self.lay = lay
+        self.layout = layout
         self.local = local or LocalSize(8, 8)
-        self.nlev, self.plane = mip_levels(lay.dmax)
+        self.nlev, self.plane = mip_levels(layout.dmax)
         self.atlas = atlas
         extra = {"NLEV": self.nlev, "PYR_PLANE": self.plane}
         # the local size is a launch parameter only: every configuration shares one program
-        self.kb = layered_kernel(context, "filter_mip", "filter_mip_build", lay, None, **extra)
+        self.kb = layered_kernel(context, "filter_mip", "filter_mip_build", layout, None, **extra)
         if atlas is not None:
             extra |= {"ATLAS_RW": atlas["rw"], "ATLAS_RH": atlas["rh"],
                       "ATLAS_PER_ROW": atlas["per_row"]}
-            self.kp = layered_kernel(context, "filter_mip_image", "filter_mip_pack", lay, None,
+            self.kp = layered_kernel(context, "filter_mip_image", "filter_mip_pack", layout, None,
                                      **extra)
             self.ks = layered_kernel(context, "filter_mip_image", "filter_mip_sample_image",
-                                     lay, None, **extra)
+                                     layout, None, **extra)
             # RGBA float: r, g, b, own weight; R float: behind weight
             shape = (atlas["width"], atlas["height"])
             self.images = tuple(
@@ -50,7 +53,7 @@ class FilterMip:
                 for order in (cl.channel_order.RGBA, cl.channel_order.R))
             self._cleared = False
         else:
-            self.ks = layered_kernel(context, "filter_mip", "filter_mip_sample", lay, None,
+            self.ks = layered_kernel(context, "filter_mip", "filter_mip_sample", layout, None,
                                      **extra)
             self.images = None
         self.kernel = self.ks  # the one the local size tunes
@@ -73,7 +76,7 @@ class FilterMip:
                 self._cleared = True
             rgbw, behind = self.images
             self.kp.set_args(params, grids, pyr, rgbw, behind)
-            side = self.lay.dmax + 2
+            side = self.layout.dmax + 2
             ep = cl.enqueue_nd_range_kernel(queue, self.kp, (side, side, nslots), None,
                                             wait_for=wait)
             self.events.append(("filter_mip_pack", ep))
@@ -81,7 +84,8 @@ class FilterMip:
             wait = [ep]
         else:
             self.ks.set_args(params, grids, pyr, filtered)
-        g, loc = local_for(self.local, (self.lay.ft, self.lay.ft, nslots))
+        side = self.layout.filtered_side
+        g, loc = local_for(self.local, (side, side, nslots))
         es = cl.enqueue_nd_range_kernel(queue, self.ks, g, loc, wait_for=wait)
         self.events.append(("filter_mip_sample", es))
         return es

@@ -5,13 +5,13 @@ from __future__ import annotations
 import pyopencl as cl
 
 from clrecon.core.device import get_kernel
-from clrecon.core.pipeline import LocalSize
-from clrecon.methods.layered.reference import Layout
+from clrecon.core.local_size import LocalSize
+from clrecon.methods.layered.layout import Layout
 
 
-def layered_kernel(context: cl.Context, file: str, kernel: str, lay: Layout,
+def layered_kernel(context: cl.Context, file: str, kernel: str, layout: Layout,
                    local: LocalSize | None, **extra) -> cl.Kernel:
-    defines = lay.defines() | extra
+    defines = layout.defines() | extra
     if local is not None and local.x is not None:
         defines |= {"WG_X": local.x, "WG_Y": local.y}
     return get_kernel(context, file, kernel, defines)

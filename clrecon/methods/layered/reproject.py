@@ -5,9 +5,11 @@ import numpy as np
 import pyopencl as cl
 
 from clrecon.core.fixed import enqueue_color_bound
-from clrecon.core.pipeline import DeviceSamples, LocalSize
+from clrecon.core.local_size import LocalSize
+from clrecon.core.pipeline import DeviceSamples
+from clrecon.methods.layered.layout import SUBSAMPLE_DEFAULT, Layout, subsample_cap
 from clrecon.methods.layered.passes import layered_kernel
-from clrecon.methods.layered.reference import Layout, subsample_cap
+from clrecon.tune.tunable import GPU_1D, Tunable, layered_1d_candidates
 
 
 class Reproject:
@@ -20,18 +22,21 @@ class Reproject:
     ``deterministic=True`` of the method)."""
 
     name = "reproject"
+    # one item per (tile, slot) owns its grid on a CPU; a GPU's 64 scatter with atomics
+    TUNABLE = Tunable(name, "reproject", {"wg_x": 1, "wg_y": 1}, layered_1d_candidates,
+                      rtol=1e-4, atol=1e-4, gpu=GPU_1D)
 
-    def __init__(self, context: cl.Context, lay: Layout, bilinear: bool = False,
-                 local: LocalSize | None = None, subsample: int | bool = True,
+    def __init__(self, context: cl.Context, layout: Layout, bilinear: bool = False,
+                 local: LocalSize | None = None, subsample: int | bool = SUBSAMPLE_DEFAULT,
                  fixed: bool = False, local_acc: bool | None = None):
-        self.lay = lay
+        self.layout = layout
         wg = local.x if local and local.x else 1
         self.local = LocalSize(wg, 1)
         self.fixed = bool(fixed)
         # the owner (one item) of a slot keeps its own channels in local memory, a float4 per
         # grid cell (kernels/reproject.cl: OWN_LOCAL), where the device has room for them
         # (local_acc None; False: in the grids, as the items of a group do)
-        need, have = 16 * lay.dmax ** 2, min(d.local_mem_size for d in context.devices)
+        need, have = 16 * layout.dmax ** 2, min(d.local_mem_size for d in context.devices)
         room = need <= have
         if local_acc and not room:
             raise ValueError(f"local_acc: needs {need} bytes of local memory; the device has "
@@ -39,14 +44,14 @@ class Reproject:
         self.local_acc = wg == 1 and room and local_acc is not False
         defines = dict(SPLAT_BILINEAR=bool(bilinear), SUBSAMPLE=subsample_cap(subsample),
                        FIXED=self.fixed, LOCAL_ACC=self.local_acc)
-        self.kernel = layered_kernel(context, "reproject", "reproject", lay, self.local,
+        self.kernel = layered_kernel(context, "reproject", "reproject", layout, self.local,
                                      **defines)
-        self.bucket_kernel = layered_kernel(context, "reproject", "reproject_buckets", lay,
+        self.bucket_kernel = layered_kernel(context, "reproject", "reproject_buckets", layout,
                                             self.local, **defines)
         self._own_buckets: cl.Buffer | None = None
         if self.fixed:
             self.bound_kernel = layered_kernel(context, "reproject", "reproject_color_bound",
-                                               lay, self.local, **defines)
+                                               layout, self.local, **defines)
         self.events: list[tuple[str, cl.Event]] = []
 
     @staticmethod
@@ -54,7 +59,7 @@ class Reproject:
         """Bytes of the ``buckets`` temporary: one per sample."""
         return width * height * spp
 
-    def __call__(self, queue, samples: DeviceSamples, kabc, params: cl.Buffer,
+    def __call__(self, queue, samples: DeviceSamples, bucket_coeffs, params: cl.Buffer,
                  grids: cl.Buffer, wait_for=None, fixed: cl.Buffer | None = None,
                  bound: cl.Buffer | None = None, buckets: cl.Buffer | None = None
                  ) -> cl.Event:
@@ -65,9 +70,9 @@ class Reproject:
         if self.fixed and (fixed is None or bound is None):
             raise ValueError("fixed: the pass needs the fixed-point grids and the colour bound "
                              "buffer")
-        ntx, nty = self.lay.tiles(samples.width, samples.height)
+        ntx, nty = self.layout.tiles(samples.width, samples.height)
         npix = samples.width * samples.height
-        need = self.buckets_bytes(samples.width, samples.height, self.lay.spp)
+        need = self.buckets_bytes(samples.width, samples.height, self.layout.spp)
         if buckets is None:
             if self._own_buckets is None or self._own_buckets.size < need:
                 self._own_buckets = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, need)
@@ -75,7 +80,7 @@ class Reproject:
         elif buckets.size < need:
             raise ValueError(f"buckets: needs {need} bytes, got {buckets.size}")
         self.bucket_kernel.set_args(samples["depth"], np.int32(npix),
-                                    *(np.float32(v) for v in kabc), buckets)
+                                    *(np.float32(v) for v in bucket_coeffs), buckets)
         ev = cl.enqueue_nd_range_kernel(queue, self.bucket_kernel, (npix,), None,
                                         wait_for=wait_for)
         # named as the pass: its time and bytes are the pass's (reports list passes by name)
@@ -93,7 +98,7 @@ class Reproject:
             deps.append(ev)
             args += [fixed, bound]
         self.kernel.set_args(*args)
-        n = ntx * nty * self.lay.maxp * self.local.x
+        n = ntx * nty * self.layout.maxp * self.local.x
         ev = cl.enqueue_nd_range_kernel(queue, self.kernel, (n,), (self.local.x,),
                                         wait_for=deps)
         self.events.append(("reproject", ev))

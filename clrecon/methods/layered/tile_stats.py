@@ -4,28 +4,33 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from clrecon.core.pipeline import DeviceSamples, LocalSize
+from clrecon.core.local_size import LocalSize
+from clrecon.core.pipeline import DeviceSamples
+from clrecon.methods.layered.layout import Layout
 from clrecon.methods.layered.passes import layered_kernel, local_for
-from clrecon.methods.layered.reference import Layout
+from clrecon.tune.tunable import GPU_1D, LAYERED_1D, Tunable, layered_1d_candidates
 
 
 class TileStats:
     """``kernels/tile_stats.cl``: one work-item per tile; ``stride`` 1 = full statistics."""
 
     name = "tile_stats"
+    # float sums in a different order (atomics): relative tolerance
+    TUNABLE = Tunable(name, "tile_stats", LAYERED_1D, layered_1d_candidates, rtol=1e-4,
+                      atol=1e-4, gpu=GPU_1D)
 
-    def __init__(self, context: cl.Context, lay: Layout, local: LocalSize | None = None):
-        self.lay = lay
+    def __init__(self, context: cl.Context, layout: Layout, local: LocalSize | None = None):
+        self.layout = layout
         self.local = local or LocalSize(8, 1)
         # the local size is a launch parameter only: every configuration shares one program
-        self.kernel = layered_kernel(context, "tile_stats", "tile_stats", lay, None)
+        self.kernel = layered_kernel(context, "tile_stats", "tile_stats", layout, None)
 
-    def __call__(self, queue, samples: DeviceSamples, kabc, stride: int, seed: int,
+    def __call__(self, queue, samples: DeviceSamples, bucket_coeffs, stride: int, seed: int,
                  stats: cl.Buffer, wait_for=None) -> cl.Event:
-        ntx, nty = self.lay.tiles(samples.width, samples.height)
+        ntx, nty = self.layout.tiles(samples.width, samples.height)
         c0, c1 = samples.coc
         motion = samples.buffers.get("motion", samples["depth"])
-        ka, kb, kc = kabc
+        ka, kb, kc = bucket_coeffs
         self.kernel.set_args(samples["depth"], motion, np.int32(samples.width),
                              np.int32(samples.height), np.int32(ntx), np.int32(ntx * nty),
                              np.float32(ka), np.float32(kb), np.float32(kc), np.float32(c0),

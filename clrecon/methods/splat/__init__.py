@@ -2,7 +2,7 @@
 pinhole frame (S = 1, lens 0, time 0.5) and reconstruction from stochastic samples.
 
 Plan: clear -> ``splat`` (per-sample spreadlets into per-layer Laplacian images, small PSFs
-densely into per-layer direct images) -> ``integrate`` (convolution pyramid per layer) ->
+densely into per-layer direct images) -> ``splat_integrate`` (convolution pyramid per layer) ->
 ``splat_composite`` (back to front with coverage re-weighting).
 
 Knobs: ``psf`` (``"simplelens"``, ``"combined"``, ``"stylized"``; default from the frame:
@@ -57,15 +57,17 @@ from clrecon.core.pipeline import Pipeline, register
 from clrecon.core.plan import Bound, Plan, Step, coc_bound, motion_bound, shape_bounds
 from clrecon.core.samples import FIELDS
 from clrecon.methods.box import Box, box_plan
-from clrecon.methods.splat.composite import Composite
-from clrecon.methods.splat.integrate import Integrate
-from clrecon.methods.splat.mip import MAX_RADIUS, MIN_RADIUS, MipGeometry, MipSplat
+from clrecon.methods.splat.composite import SplatComposite
+from clrecon.methods.splat.integrate import SplatIntegrate
+from clrecon.methods.splat.layers import inv_span, layer_params
+from clrecon.methods.splat.mip import MAX_RADIUS, MIN_RADIUS
+from clrecon.methods.splat.mip_plan import MipPlan
 from clrecon.methods.splat.psf import MODELS
 from clrecon.methods.splat.reference import PYRAMIDS
 from clrecon.methods.splat.splat import SCATTERS, Splat
 from clrecon.methods.splat.tables import DeviceTable, host_table
+from clrecon.tune.local import local_size_of
 from clrecon.tune.runtime import tuned
-from clrecon.tune.specs import local_size_of
 
 log = logging.getLogger(__name__)
 PSF_MODELS = tuple(MODELS)
@@ -85,7 +87,7 @@ MAX_FAST_RATIO = 1e6
 
 
 @register
-class SplatPipeline(Pipeline):
+class SplatPipeline(MipPlan, Pipeline):
     name = "splat"
     fields = tuple(FIELDS)
     #: splat_composite clamps each layer's colour at 0 (the integration rings below it):
@@ -155,8 +157,8 @@ class SplatPipeline(Pipeline):
             motion if self.motion_split > 1 else 0.5 * motion)
         self.pad = self.reach + int(np.ceil(min(self.shift, float(self.reach)))) + 2
         self.requested_layers = int(layers)
-        self.layers = int(layers) if _layer_params(info, 1)[1] > 0 else 1
-        self.inv_far, self.layer_scale = _layer_params(info, self.layers)
+        self.layers = int(layers) if layer_params(info, 1)[1] > 0 else 1
+        self.inv_far, self.layer_scale = layer_params(info, self.layers)
         self.use_lap = not bool(np.all(self.table.fast[reach]))
         self.has_motion = info.has_motion
         self.tuning: dict[str, str] = {}
@@ -168,20 +170,20 @@ class SplatPipeline(Pipeline):
                                "sized from the longest motion")]
         if self.layers == 1 and self.requested_layers > 1:
             bounds.append(Bound("inverse_depth_span", "<=", 0.0, "one layer: a frame of a "
-                                "single depth", lambda i: _inv_span(i), ("depth",)))
+                                "single depth", lambda i: inv_span(i), ("depth",)))
         # static and in focus: every sample lands, whole, in its own pixel -> the box filter
         self.plan_name = "box" if self.shift == 0.0 and self._delta_only(reach) else "splat"
         if self.plan_name == "box":
             self.use_lap, self.layers, self.pad = False, 1, 0
-            found = tuned(context, "box", info)
+            found = tuned(context, Box.TUNABLE, info)
             self.tuning["box"] = found.source
             self.box = Box(context, local_size_of(found.config))
             self.set_plan(box_plan("splat", self.box, info, bounds))
             return
 
-        def config(pass_name):
-            found = tuned(context, pass_name, info)
-            self.tuning[pass_name] = found.source
+        def config(tunable):
+            found = tuned(context, tunable, info)
+            self.tuning[tunable.name] = found.source
             return found.config
 
         int64 = all("cl_khr_int64_base_atomics" in d.extensions.split()
@@ -202,87 +204,16 @@ class SplatPipeline(Pipeline):
         self.device_table = DeviceTable(context, self.table)
         self.fixed = self.deterministic and scatter == "atomic"
         self.klog2 = self._fixed_klog2(info) if self.fixed else 0
-        cfg = config("splat")
+        cfg = config(Splat.TUNABLE)
         self.splat = Splat(context, info.spp, ndim, self.has_motion, self.layers,
                            None if cfg is None else int(cfg["wg"]), scatter, fixed=self.fixed)
-        self.composite = Composite(context, self.layers, self.use_lap,
-                                   local_size_of(config("splat_composite")))
+        self.composite = SplatComposite(context, self.layers, self.use_lap,
+                                        local_size_of(config(SplatComposite.TUNABLE)))
         self.pyramid = pyramid
-        self.integrate = Integrate(context, ph, pw, pyramid, local_size_of(
-            config("integrate"))) if self.use_lap else None
+        self.integrate = SplatIntegrate(context, ph, pw, pyramid, local_size_of(
+            config(SplatIntegrate.TUNABLE))) if self.use_lap else None
         self.set_plan(self._plan(info, shape_bounds(info, "kernels compiled for this spp")
                                  + tuple(bounds)))
-
-    def _init_mip(self, context, info, scatter, config, bounds) -> None:
-        """The mip plan (:mod:`clrecon.methods.splat.mip`): clear -> bin -> draw -> upsample ->
-        splat_composite. ``deterministic=True`` takes the owner tiles (plain adds in a fixed
-        order), the float atomics are not reproducible."""
-        if self.deterministic and scatter == "atomic":
-            scatter = "tiles"
-        self.plan_name, self.use_lap, self.clamped = "mip", False, {}
-        motion = info.max_abs_motion if self.psf == "combined" else 0.0
-        self.geometry = geo = MipGeometry(info.width, info.height, self.layers,
-                                          self.mip_radius, info.max_abs_coc, motion)
-        if geo.clamped:
-            self.clamped["mip_levels"] = {"levels": geo.nlev}
-            log.warning("splat: the frame's blur exceeds %d mip levels; the largest PSF "
-                        "stands in for larger blur", geo.nlev)
-        self.pad = geo.pad
-        self.mip = MipSplat(context, info.spp, self.has_motion and self.psf == "combined",
-                            geo, scatter)
-        self.composite = Composite(context, self.layers, False,
-                                   local_size_of(config("splat_composite")))
-        temps = {"mip_image": geo.image_bytes, "mip_bins": geo.bin_bytes,
-                 "ring": self.layers * 16}
-
-        # the draw pass zeroes every bin it consumes, so the pipeline's own bins are clean
-        # after a frame and their clear (a fifth of the frame's bytes) is skipped; bins an
-        # embedder passes, or ours after a frame that stopped between bin and draw, are
-        # cleared
-        self._clean_bins: set[int] = set()
-
-        def clear(queue, f, wait):
-            # clean bins get a 16-byte fill of the zeros they hold: every frame enqueues the
-            # same events (what the benches pair up run to run)
-            clean = f.buffers["mip_bins"].int_ptr in self._clean_bins
-            sizes = {"mip_image": temps["mip_image"],
-                     "mip_bins": 16 if clean else temps["mip_bins"]}
-            return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
-                                                     n, wait_for=wait))
-                    for k, n in sizes.items()]
-
-        def bin_(queue, f, wait):
-            inv_far, scale = _layer_params(f.info, self.layers)
-            self._clean_bins.discard(f.buffers["mip_bins"].int_ptr)
-            self.mip.bin(queue, f.samples, inv_far, scale, f.buffers["mip_bins"], wait)
-            return self.mip.events
-
-        def draw(queue, f, wait):
-            bins = f.buffers["mip_bins"]
-            self.mip.draw(queue, bins, f.buffers["mip_image"], wait)
-            if self._own.get("mip_bins") is bins:
-                self._clean_bins.add(bins.int_ptr)
-            return self.mip.events
-
-        def upsample(queue, f, wait):
-            self.mip.upsample(queue, f.buffers["mip_image"], wait)
-            return self.mip.events
-
-        def composite(queue, f, wait):
-            b = f.buffers
-            return [("splat_composite", self.composite(
-                queue, b["mip_image"], b["mip_image"], b["ring"], f.width, f.height,
-                geo.pad, b["out"], wait, color=b["color"], spp=f.spp))]
-
-        steps = [Step("clear", (), ("mip_image", "mip_bins"), clear),
-                 Step("bin", tuple(FIELDS), ("mip_bins",), bin_),
-                 Step("draw", ("mip_bins",), ("mip_image",), draw)]
-        if geo.nlev > 1:
-            steps.append(Step("upsample", ("mip_image",), ("mip_image",), upsample))
-        steps.append(Step("splat_composite", ("mip_image", "color"), ("out",), composite))
-        bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
-        self.set_plan(Plan("splat", "splat", tuple(FIELDS), tuple(steps), temps,
-                           tuple(bounds)))
 
     def _fixed_klog2(self, info) -> int:
         """``deterministic``: ``klog2`` with ``2**klog2`` >= the sum of ``|weight * value|``
@@ -318,7 +249,7 @@ class SplatPipeline(Pipeline):
 
         def splat(queue, f, wait):
             b = f.buffers
-            inv_far, scale = _layer_params(f.info, self.layers)
+            inv_far, scale = layer_params(f.info, self.layers)
             self.splat(queue, f.samples, self.device_table, inv_far, scale, self.pad,
                        self.reach, b[acc[lap]], b[acc["direct"]], wait, self.shift,
                        b.get("color_bound"), self.klog2)
@@ -334,7 +265,7 @@ class SplatPipeline(Pipeline):
             b, evs = f.buffers, []
             for layer in range(self.layers):
                 ev = self.integrate(queue, b["lap"], layer, b["prim"], b["ring"], wait)
-                evs += [("integrate", e) for e in self.integrate.events]
+                evs += [("splat_integrate", e) for e in self.integrate.events]
                 wait = [ev]
             return evs
 
@@ -353,7 +284,7 @@ class SplatPipeline(Pipeline):
             steps.append(Step("fixed_to_float", targets + ("color_bound",), tuple(acc),
                               to_float))
         if self.use_lap:
-            steps.append(Step("integrate", ("lap",), ("prim", "ring"), integrate))
+            steps.append(Step("splat_integrate", ("lap",), ("prim", "ring"), integrate))
         steps.append(Step("splat_composite", (prim, "direct", "ring", "color"), ("out",),
                           composite))
         return Plan("splat", "splat", tuple(FIELDS), tuple(steps),
@@ -418,26 +349,6 @@ class SplatPipeline(Pipeline):
                 "fixed_resolution": 2.0 ** (self.klog2 - 60) if self.fixed else None,
                 "fast_cells": int(self.table.fast.sum()), "cells": len(self.table.fast),
                 "bounds": [b.describe() for b in self.plan.bounds], "tuning": self.tuning}
-
-
-def _inv_range(info) -> tuple[float, float]:
-    """(1 / nearest hit, 1 / farthest hit or 0 when the frame has misses)."""
-    hits = info.miss_fraction < 1.0
-    inv_near = 1.0 / info.min_depth if hits else 0.0
-    inv_far = 0.0 if info.miss_fraction > 0 or not hits else 1.0 / info.max_depth
-    return inv_near, inv_far
-
-
-def _inv_span(info) -> float:
-    inv_near, inv_far = _inv_range(info)
-    return inv_near - inv_far
-
-
-def _layer_params(info, layers: int) -> tuple[float, float]:
-    """``(inv_far, layer_scale)`` of a frame: layers uniform in 1/depth over its own range
-    (kernel arguments, so each frame gets its own placement)."""
-    inv_near, inv_far = _inv_range(info)
-    return inv_far, (layers / (inv_near - inv_far) if inv_near > inv_far else 0.0)
 
 
 def _cell_l1(vals: np.ndarray, offs: np.ndarray) -> float:

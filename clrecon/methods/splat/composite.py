@@ -1,18 +1,20 @@
 """Pass ``splat_composite``: back-to-front composition of the layers
-(``kernels/splat_composite.cl``; ``layered`` has its own ``composite``)."""
+(``kernels/splat_composite.cl``; ``layered`` has its own ``layered_composite``)."""
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import get_kernel
-from clrecon.core.pipeline import LocalSize
+from clrecon.core.local_size import LocalSize
+from clrecon.tune.tunable import DEFAULT_LOCAL, GPU_LOCAL, Tunable, local_candidates
 
 
-class Composite:
+class SplatComposite:
     """``kernels/splat_composite.cl`` / ``splat_composite``."""
 
     name = "splat_composite"
+    TUNABLE = Tunable(name, "splat_composite", DEFAULT_LOCAL, local_candidates, gpu=GPU_LOCAL)
 
     def __init__(self, context: cl.Context, nlayers: int, use_lap: bool,
                  local: LocalSize | None = None):

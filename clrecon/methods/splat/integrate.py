@@ -1,14 +1,15 @@
-"""Pass ``integrate``: convolution-pyramid integration of every layer's Laplacian image and
-its ring anchor (``kernels/integrate.cl``)."""
+"""Pass ``splat_integrate``: convolution-pyramid integration of every layer's Laplacian
+image and its ring anchor (``kernels/splat_integrate.cl``)."""
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import get_kernel
-from clrecon.core.pipeline import LocalSize
+from clrecon.core.local_size import LocalSize
 from clrecon.methods.splat.reference import PYRAMIDS, pyramid_shapes
 from clrecon.tune.runtime import check_kernel_fits
+from clrecon.tune.tunable import DEFAULT_LOCAL, GPU_LOCAL, Tunable, local_candidates
 
 #: integrate_ring's work-group size where the device takes it (:func:`ring_group`)
 RING_WG = 256
@@ -21,18 +22,20 @@ def ring_group(device: cl.Device) -> int:
     limit = min(RING_WG, int(device.max_work_group_size), int(device.max_work_item_sizes[0]),
                 int(device.local_mem_size) // 16)
     if limit < 1:
-        raise ValueError(f"integrate: integrate_ring needs 16 bytes of local memory; the "
+        raise ValueError(f"splat_integrate: integrate_ring needs 16 bytes of local memory; the "
                          f"device has {device.local_mem_size} ({device.name.strip()})")
     return 1 << (limit.bit_length() - 1)
 
 
-class Integrate:
-    """``kernels/integrate.cl``: ``integrate_down``, ``integrate_up``, ``integrate_ring``.
+class SplatIntegrate:
+    """``kernels/splat_integrate.cl``: ``integrate_down``, ``integrate_up``, ``integrate_ring``.
 
     Allocates the pyramid levels for one padded image shape; layers reuse them in turn.
     """
 
-    name = "integrate"
+    name = "splat_integrate"
+    TUNABLE = Tunable(name, "splat_integrate", DEFAULT_LOCAL, local_candidates, rtol=1e-4,
+                      atol=1e-6, gpu=GPU_LOCAL)
 
     def __init__(self, context: cl.Context, height: int, width: int, pyramid: str = "f5",
                  local: LocalSize | None = None):
@@ -44,9 +47,9 @@ class Integrate:
         self.ring_wg = ring_group(dev)
         # the 2D kernels' local size is a launch parameter only: one program for every one
         defines = {"PYR": 5 if pyramid == "f5" else 7, "WG_RING": self.ring_wg}
-        self.down = get_kernel(context, "integrate", "integrate_down", defines)
-        self.up = get_kernel(context, "integrate", "integrate_up", defines)
-        self.ring = get_kernel(context, "integrate", "integrate_ring", defines)
+        self.down = get_kernel(context, "splat_integrate", "integrate_down", defines)
+        self.up = get_kernel(context, "splat_integrate", "integrate_up", defines)
+        self.ring = get_kernel(context, "splat_integrate", "integrate_ring", defines)
         check_kernel_fits(self.ring, dev, self.name, self.ring_wg,
                           f"integrate_ring with {self.ring_wg} work-items")
         self.kernel = self.up  # the 2D kernels share the local size; the tuner queries one

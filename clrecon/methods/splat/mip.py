@@ -1,5 +1,6 @@
 """Method ``splat``'s mip plan (``mip_radius``): the PSFs drawn on a pyramid, so that the cost
-per sample does not grow with the blur (``kernels/splat_mip.cl``).
+per sample does not grow with the blur (``kernels/splat_mip_bin.cl``, ``kernels/splat_mip_draw.cl``,
+``kernels/splat_mip.h``).
 
 Why not the paper's spreadlets: a PSF's Laplacian is non-zero along its outline, so the
 spreadlets of a disc grow with its perimeter (231 for a disc of radius 15, 3,149 for a
@@ -126,9 +127,9 @@ class MipSplat:
                    **geometry.defines()}
         names = ("splat_mip_bin_tiles", "splat_mip_draw_tiles") if scatter == "tiles" else \
             ("splat_mip_bin_samples", "splat_mip_draw_bins")
-        self.bin_kernel = get_kernel(context, "splat_mip", names[0], defines)
-        self.draw_kernel = get_kernel(context, "splat_mip", names[1], defines)
-        self.up_kernel = get_kernel(context, "splat_mip", "splat_mip_upsample", defines)
+        self.bin_kernel = get_kernel(context, "splat_mip_bin", names[0], defines)
+        self.draw_kernel = get_kernel(context, "splat_mip_draw", names[1], defines)
+        self.up_kernel = get_kernel(context, "splat_mip_draw", "splat_mip_upsample", defines)
         self.levels = cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                                 hostbuf=geometry.levels)
         self.events: list[tuple[str, cl.Event]] = []

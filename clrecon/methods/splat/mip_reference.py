@@ -1,4 +1,4 @@
-"""NumPy reference of ``splat``'s mip plan (``kernels/splat_mip.cl``, :mod:`.mip`): the bins,
+"""NumPy reference of ``splat``'s mip plan (``kernels/splat_mip_*.cl``, :mod:`.mip`): the bins,
 the drawn levels and their upsampling into level 0, for the kernels' tests.
 
 The discrete choices (level, layer, bin) follow the kernel's float32 arithmetic; what is
@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from clrecon.core.samples import MISS_DEPTH
 from clrecon.methods.splat.mip import MipGeometry
 
-MISS_DEPTH = np.float32(1e30)
 F = np.float32
 
 
@@ -19,7 +19,7 @@ def bins(buf, geo: MipGeometry, inv_far: float, layer_scale: float,
     """The bin images ``(pixels, 12)`` (every level and layer, the kernels' layout)."""
     c0, c1 = F(buf.coc_model.c0), F(buf.coc_model.c1)
     z = buf.depth.reshape(-1).astype(np.float32)
-    miss = z >= MISS_DEPTH
+    miss = z >= F(MISS_DEPTH)
     with np.errstate(divide="ignore"):
         coc = np.where(miss, c1, c0 / z + c1).astype(np.float32)
     r = np.abs(coc)

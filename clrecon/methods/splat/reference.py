@@ -27,7 +27,8 @@ import math
 
 import numpy as np
 
-MISS_DEPTH = 1e30
+from clrecon.core.samples import MISS_DEPTH
+
 COV_EPS = 1e-7
 FILL_COV = 0.1
 

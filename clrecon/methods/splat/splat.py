@@ -21,6 +21,7 @@ from clrecon.core.device import get_kernel
 from clrecon.core.fixed import enqueue_color_bound
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods.splat.tables import DeviceTable
+from clrecon.tune.tunable import Tunable, splat_candidates
 
 SCATTERS = ("atomic", "tiles")
 MIN_TILE = 16
@@ -41,6 +42,8 @@ class Splat:
     """``kernels/splat.cl``: ``splat_samples`` (atomic) or ``splat_tiles`` (owner tiles)."""
 
     name = "splat"
+    # float atomics add in a different order per configuration: relative tolerance
+    TUNABLE = Tunable(name, "splat", {"wg": 64}, splat_candidates, rtol=1e-3, atol=1e-6)
 
     def __init__(self, context: cl.Context, spp: int, ndim: int, has_motion: bool, nlayers: int,
                  wg: int | None = 64, scatter: str = "atomic", phases: int = 4,

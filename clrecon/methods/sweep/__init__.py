@@ -49,9 +49,16 @@ from clrecon.methods.box import Box, box_plan
 from clrecon.methods.sweep.block import SweepBlock, block_local_bytes
 from clrecon.methods.sweep.layers import SweepLayerResolve, SweepLayerSums
 from clrecon.methods.sweep.prepare import SweepPrepare
-from clrecon.methods.sweep.resolve import TILE_MERGES, tile_local_bytes, tile_samples_fit
+from clrecon.methods.sweep.resolve import (
+    TILE_MERGES,
+    SweepResolve,
+    make_resolve,
+    tile_local_bytes,
+    tile_samples_fit,
+)
+from clrecon.tune.local import local_size_of
 from clrecon.tune.runtime import default_config, fit_config, tuned
-from clrecon.tune.specs import DEFAULT_LOCAL, GPU_LOCAL, local_size_of, make_resolve
+from clrecon.tune.tunable import DEFAULT_LOCAL, GPU_LOCAL
 
 #: the plans of ``sort``: every one, whatever the device (``None`` picks one)
 SORTS = ("block", "tile", "pixel")
@@ -206,9 +213,9 @@ class SweepPipeline(Pipeline):
         self.tuning: dict[str, str] = {}
         self.block = self.box = None
 
-        def local(pass_name):
-            found = tuned(context, pass_name, info)
-            self.tuning[pass_name] = found.source
+        def local(tunable):
+            found = tuned(context, tunable, info)
+            self.tuning[tunable.name] = found.source
             return local_size_of(found.config)
 
         # every sample's diameter within the narrow block: only the 1x1 box ever gets weight,
@@ -224,7 +231,7 @@ class SweepPipeline(Pipeline):
         if smooth_motion is None and not self.smooth_motion and not self.dof_layers:
             bounds.append(motion_bound(0.0, "planned for a static frame: no motion term"))
         if self.box_equivalent:
-            self.box = Box(context, local("box"))
+            self.box = Box(context, local(Box.TUNABLE))
             if self.diameter_scale > 0:
                 bounds.append(coc_bound(narrow / (2 * self.diameter_scale),
                                         f"box plan: every diameter <= {narrow:g} px"))
@@ -235,8 +242,8 @@ class SweepPipeline(Pipeline):
             return
         bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
         if self.dof_layers:
-            self.sums_pass = SweepLayerSums(context, spp, local("sweep_layer_sums"))
-            self.combine = SweepLayerResolve(context, spp, local("sweep_layer_resolve"))
+            self.sums_pass = SweepLayerSums(context, spp, local(SweepLayerSums.TUNABLE))
+            self.combine = SweepLayerResolve(context, spp, local(SweepLayerResolve.TUNABLE))
             ds = self.diameter_scale
 
             def sums(queue, f, wait):
@@ -258,8 +265,9 @@ class SweepPipeline(Pipeline):
         if given.get("sort", "tile" if given else default_sort(context, self.scales, spp)) \
                 == "block":
             if group is None:
-                found = tuned(context, "sweep_block", info)
-                want = (found.config or default_config("sweep_block", describe(dev)))["group"]
+                found = tuned(context, SweepBlock.TUNABLE, info)
+                want = (found.config or default_config(SweepBlock.TUNABLE,
+                                                       describe(dev)))["group"]
                 # a group tuned at fewer spp may not fit this frame's windows: the largest
                 # that does (none: SweepBlock names what one block needs and the limit)
                 group = want if found.source in ("env", "override") else \
@@ -278,15 +286,16 @@ class SweepPipeline(Pipeline):
             self.set_plan(Plan("sweep", "block", reads,
                                (Step("sweep_block", reads, ("out",), block),), {}, bounds))
             return
-        self.prepare = SweepPrepare(context, spp, self.smooth_motion, local("sweep_prepare"))
+        self.prepare = SweepPrepare(context, spp, self.smooth_motion,
+                                    local(SweepPrepare.TUNABLE))
         if given:  # the caller's knobs win over tuning; the rest from the pass default
-            config = default_config("sweep_resolve", describe(dev)) | given
+            config = default_config(SweepResolve.TUNABLE, describe(dev)) | given
             if config["sort"] == "pixel":
                 config = pixel_config(dev)
             self.tuning["sweep_resolve"] = "api"
         else:
-            found = tuned(context, "sweep_resolve", info)
-            config = found.config or default_config("sweep_resolve", describe(dev))
+            found = tuned(context, SweepResolve.TUNABLE, info)
+            config = found.config or default_config(SweepResolve.TUNABLE, describe(dev))
             self.tuning["sweep_resolve"] = found.source
         if config["sort"] == "tile" and "tile" not in given and \
                 self.tuning["sweep_resolve"] not in ("env", "override"):

@@ -7,6 +7,7 @@ import pyopencl as cl
 from clrecon.core.device import get_kernel
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.tune.runtime import check_kernel_fits
+from clrecon.tune.tunable import Tunable
 
 BLOCK = 4  # block side: the 16 pixels of a lane set (float16 lanes)
 SUPERS = (2, 1)  # blocks per side of a work-item, the first that fits local memory wins
@@ -56,6 +57,11 @@ class SweepBlock:
     """
 
     name = "sweep_block"
+    # the whole sorted sweep per 4x4 block (sort="block"): work-items per group; the sweep
+    # fits the group to the device's local memory
+    TUNABLE = Tunable(name, "sweep_block", {"group": 1},
+                      lambda: [{"group": g} for g in (1, 2, 4, 8, 16)],
+                      rtol=1e-4, atol=1e-5, gpu={"group": 64})
 
     def __init__(self, context: cl.Context, spp: int, scales: int = 2, exponent: float = 1.0,
                  smooth_motion: bool = True, group: int = 1, supers: int | None = None):

@@ -6,13 +6,16 @@ import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import get_kernel
-from clrecon.core.pipeline import DeviceSamples, LocalSize
+from clrecon.core.local_size import LocalSize
+from clrecon.core.pipeline import DeviceSamples
+from clrecon.tune.tunable import DEFAULT_LOCAL, GPU_LOCAL, Tunable, local_candidates
 
 
 class SweepLayerSums:
     """``kernels/sweep_layer_sums.cl``: per pixel and layer, blend-weighted colour sums."""
 
     name = "sweep_layer_sums"
+    TUNABLE = Tunable(name, "sweep_layer_sums", DEFAULT_LOCAL, local_candidates, gpu=GPU_LOCAL)
 
     def __init__(self, context: cl.Context, spp: int, local: LocalSize | None = None):
         self.local = local or LocalSize(16, 4)
@@ -32,6 +35,8 @@ class SweepLayerResolve:
     """``kernels/sweep_layer_resolve.cl``: 5x5 window sums and the front-to-back combine."""
 
     name = "sweep_layer_resolve"
+    TUNABLE = Tunable(name, "sweep_layer_resolve", DEFAULT_LOCAL, local_candidates,
+                      gpu=GPU_LOCAL)
 
     def __init__(self, context: cl.Context, spp: int, local: LocalSize | None = None):
         self.local = local or LocalSize(16, 4)

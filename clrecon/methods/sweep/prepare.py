@@ -5,13 +5,16 @@ import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import get_kernel
-from clrecon.core.pipeline import DeviceSamples, LocalSize
+from clrecon.core.local_size import LocalSize
+from clrecon.core.pipeline import DeviceSamples
+from clrecon.tune.tunable import DEFAULT_LOCAL, GPU_LOCAL, Tunable, local_candidates
 
 
 class SweepPrepare:
     """``kernels/sweep_prepare.cl``: keys (x, y, depth, D) and colours, sorted per pixel."""
 
     name = "sweep_prepare"
+    TUNABLE = Tunable(name, "sweep_prepare", DEFAULT_LOCAL, local_candidates, gpu=GPU_LOCAL)
 
     def __init__(self, context: cl.Context, spp: int, smooth_motion: bool,
                  local: LocalSize | None = None):

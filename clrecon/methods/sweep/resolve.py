@@ -5,8 +5,9 @@ import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import get_kernel
-from clrecon.core.pipeline import LocalSize
+from clrecon.core.local_size import LocalSize
 from clrecon.tune.runtime import check_kernel_fits
+from clrecon.tune.tunable import Tunable
 
 SORTS = ("tile", "pixel")
 TILE_MERGES = ("auto", "serial", "bitonic")
@@ -36,12 +37,27 @@ def tile_samples_fit(tile: int, scales: int, spp: int) -> bool:
     return tile_sort_size(tile, scales, spp) <= MAX_TILE_SAMPLES
 
 
+def resolve_candidates() -> list[dict]:
+    """sweep_resolve's tuning space: the tile sort's tile sides and merges, and the pixel
+    sort's local sizes."""
+    tiles = [{"sort": "tile", "tile": t, "tile_merge": m} for t in (2, 4, 8)
+             for m in ("serial", "bitonic")]
+    pixels = [{"sort": "pixel", "wg_x": x, "wg_y": y} for x, y in ((8, 8), (16, 4), (32, 2))]
+    return tiles + pixels
+
+
 class SweepResolve:
     """``kernels/sweep_resolve.cl``: ``sort="tile"`` (one local-memory sort per tile, by a
     serial winner-tree merge or a bitonic network: ``tile_merge``, default by device type) or
     ``"pixel"`` (each pixel merges its window's sorted lists); all give the same image."""
 
     name = "sweep_resolve"
+    # float sums in a different order per configuration: relative tolerance
+    # "auto": the serial merge on CPUs, the bitonic network on GPUs; the sweep fits the
+    # tile to the device's local memory (an 8x8 tile holds 12x12 pixels' samples)
+    TUNABLE = Tunable(name, "sweep_resolve", {"sort": "tile", "tile": 4, "tile_merge": "auto"},
+                      resolve_candidates, rtol=1e-4, atol=1e-5,
+                      gpu={"sort": "tile", "tile": 8, "tile_merge": "auto"})
 
     def __init__(self, context: cl.Context, spp: int, scales: int = 2, exponent: float = 1.0,
                  sort: str = "tile", tile: int = 4, tile_merge: str = "auto",
@@ -93,3 +109,17 @@ class SweepResolve:
         self.kernel.set_args(keys, colors, np.int32(width), np.int32(height), out)
         g, loc = self.local.for_range(width, height)
         return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)
+
+
+def make_resolve(context: cl.Context, spp: int, scales: int, exponent: float,
+                 config: dict) -> SweepResolve:
+    """A :class:`SweepResolve` for a tuning configuration (``{"sort": "tile", "tile",
+    "tile_merge"}`` or ``{"sort": "pixel", "wg_x", "wg_y"}``)."""
+    sort = config.get("sort")
+    if sort not in SORTS:
+        raise ValueError(f"sort: must be one of {SORTS}, got {sort!r}")
+    if sort == "tile":
+        return SweepResolve(context, spp, scales, exponent, "tile", config["tile"],
+                            config["tile_merge"])
+    return SweepResolve(context, spp, scales, exponent, "pixel",
+                        local=LocalSize(int(config["wg_x"]), int(config["wg_y"])))

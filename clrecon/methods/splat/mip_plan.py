@@ -1,0 +1,94 @@
+"""splat's mip plan as steps: clear -> bin -> draw -> upsample -> splat_composite
+(:mod:`clrecon.methods.splat.mip` has the passes and the geometry). A mixin of
+:class:`clrecon.methods.splat.SplatPipeline`, which chooses this plan (``mip_radius > 0``)."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pyopencl as cl
+
+from clrecon.core.plan import Plan, Step, shape_bounds
+from clrecon.core.samples import FIELDS
+from clrecon.methods.splat.composite import SplatComposite
+from clrecon.methods.splat.layers import layer_params
+from clrecon.methods.splat.mip import MipGeometry, MipSplat
+from clrecon.tune.local import local_size_of
+
+log = logging.getLogger("clrecon.methods.splat")
+
+
+class MipPlan:
+    """The mip plan's construction; expects the attributes SplatPipeline's constructor sets
+    (``deterministic``, ``psf``, ``layers``, ``mip_radius``, ``has_motion``, ``_own``)."""
+
+    def _init_mip(self, context, info, scatter, config, bounds) -> None:
+        """The mip plan (:mod:`clrecon.methods.splat.mip`): clear -> bin -> draw -> upsample ->
+        splat_composite. ``deterministic=True`` takes the owner tiles (plain adds in a fixed
+        order), the float atomics are not reproducible."""
+        if self.deterministic and scatter == "atomic":
+            scatter = "tiles"
+        self.plan_name, self.use_lap, self.clamped = "mip", False, {}
+        motion = info.max_abs_motion if self.psf == "combined" else 0.0
+        self.geometry = geo = MipGeometry(info.width, info.height, self.layers,
+                                          self.mip_radius, info.max_abs_coc, motion)
+        if geo.clamped:
+            self.clamped["mip_levels"] = {"levels": geo.nlev}
+            log.warning("splat: the frame's blur exceeds %d mip levels; the largest PSF "
+                        "stands in for larger blur", geo.nlev)
+        self.pad = geo.pad
+        self.mip = MipSplat(context, info.spp, self.has_motion and self.psf == "combined",
+                            geo, scatter)
+        self.composite = SplatComposite(context, self.layers, False,
+                                        local_size_of(config(SplatComposite.TUNABLE)))
+        temps = {"mip_image": geo.image_bytes, "mip_bins": geo.bin_bytes,
+                 "ring": self.layers * 16}
+
+        # the draw pass zeroes every bin it consumes, so the pipeline's own bins are clean
+        # after a frame and their clear (a fifth of the frame's bytes) is skipped; bins an
+        # embedder passes, or ours after a frame that stopped between bin and draw, are
+        # cleared
+        self._clean_bins: set[int] = set()
+
+        def clear(queue, f, wait):
+            # clean bins get a 16-byte fill of the zeros they hold: every frame enqueues the
+            # same events (what the benches pair up run to run)
+            clean = f.buffers["mip_bins"].int_ptr in self._clean_bins
+            sizes = {"mip_image": temps["mip_image"],
+                     "mip_bins": 16 if clean else temps["mip_bins"]}
+            return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
+                                                     n, wait_for=wait))
+                    for k, n in sizes.items()]
+
+        def bin_(queue, f, wait):
+            inv_far, scale = layer_params(f.info, self.layers)
+            self._clean_bins.discard(f.buffers["mip_bins"].int_ptr)
+            self.mip.bin(queue, f.samples, inv_far, scale, f.buffers["mip_bins"], wait)
+            return self.mip.events
+
+        def draw(queue, f, wait):
+            bins = f.buffers["mip_bins"]
+            self.mip.draw(queue, bins, f.buffers["mip_image"], wait)
+            if self._own.get("mip_bins") is bins:
+                self._clean_bins.add(bins.int_ptr)
+            return self.mip.events
+
+        def upsample(queue, f, wait):
+            self.mip.upsample(queue, f.buffers["mip_image"], wait)
+            return self.mip.events
+
+        def composite(queue, f, wait):
+            b = f.buffers
+            return [("splat_composite", self.composite(
+                queue, b["mip_image"], b["mip_image"], b["ring"], f.width, f.height,
+                geo.pad, b["out"], wait, color=b["color"], spp=f.spp))]
+
+        steps = [Step("clear", (), ("mip_image", "mip_bins"), clear),
+                 Step("bin", tuple(FIELDS), ("mip_bins",), bin_),
+                 Step("draw", ("mip_bins",), ("mip_image",), draw)]
+        if geo.nlev > 1:
+            steps.append(Step("upsample", ("mip_image",), ("mip_image",), upsample))
+        steps.append(Step("splat_composite", ("mip_image", "color"), ("out",), composite))
+        bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
+        self.set_plan(Plan("splat", "splat", tuple(FIELDS), tuple(steps), temps,
+                           tuple(bounds)))
