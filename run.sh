@@ -48,6 +48,6 @@ shift || true
 case "$cmd" in
   setup) if [ -n "$platform_env" ]; then echo "$platform_env"; fi ;;
   demo) exec "$VENV/bin/clrecon" demo "$@" ;;
-  test) exec "$VENV/bin/python" -m pytest -q "$@" ;;
+  test) exec "$VENV/bin/python" -m pytest -q -n auto --dist loadfile "$@" ;;
   *) exec "$VENV/bin/clrecon" "$cmd" "$@" ;;
 esac

@@ -86,8 +86,10 @@ class Reconstruction:
 
     ``pass_ms`` are device times of the plan's passes; ``upload_ms`` the host-to-device copy
     (wall); ``inspect_ms`` the device validation and inspection (wall: it reads a few bytes
-    back); ``plan_ms`` planning (wall, 0 when the cached plan held; a first call of a process
-    also compiles here); ``total_ms`` the wall time of the whole call.
+    back); ``plan_ms`` planning (wall, 0 when the cached plan held; the first call of a
+    process for a plan also builds its programs here); ``wall_ms`` the wall time of the
+    whole call, planning included; ``frame_ms`` the same without planning: what the call
+    costs once its plan is built (upload, inspection, the passes, read-back).
     """
 
     image: np.ndarray
@@ -95,7 +97,7 @@ class Reconstruction:
     device: str
     pass_ms: dict[str, float] = field(default_factory=dict)
     upload_ms: float = 0.0
-    total_ms: float = 0.0
+    wall_ms: float = 0.0
     inspect_ms: float = 0.0
     plan_ms: float = 0.0
     #: with ``estimate_error=True``: (H, W) float32 estimated squared error of ``image``
@@ -104,6 +106,10 @@ class Reconstruction:
     @property
     def device_ms(self) -> float:
         return float(sum(self.pass_ms.values()))
+
+    @property
+    def frame_ms(self) -> float:
+        return self.wall_ms - self.plan_ms
 
 
 @dataclass(eq=False)
@@ -215,7 +221,7 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
         device=dev.info.label,
         pass_ms=pass_ms,
         upload_ms=(t1 - t0) * 1e3,
-        total_ms=(t3 - t0) * 1e3,
+        wall_ms=(t3 - t0) * 1e3,
         inspect_ms=(t2 - t1) * 1e3,
         plan_ms=plan_ms,
         error=error,

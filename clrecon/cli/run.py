@@ -187,7 +187,7 @@ def _print_reconstruction(args, buf, res, ref) -> None:
     out = {"input": str(args.input), "output": str(args.output), "device": res.device,
            "size": [buf.width, buf.height], "spp": buf.spp, **res.method,
            "pass_ms": res.pass_ms, "device_ms": res.device_ms, "upload_ms": res.upload_ms,
-           "total_ms": res.total_ms}
+           "plan_ms": res.plan_ms, "frame_ms": res.frame_ms, "wall_ms": res.wall_ms}
     if ref is not None:
         out["quality"] = quality(res.image, args.reference, ref)
     if args.json:
@@ -195,7 +195,8 @@ def _print_reconstruction(args, buf, res, ref) -> None:
         return
     passes = ", ".join(f"{k} {v:.2f} ms" for k, v in res.pass_ms.items())
     print(f"{args.method} on {res.device}: {passes} (device {res.device_ms:.2f} ms, "
-          f"total with upload and readback {res.total_ms:.1f} ms) -> {args.output}")
+          f"frame with upload and readback {res.frame_ms:.1f} ms, planning and program "
+          f"builds {res.plan_ms:.1f} ms) -> {args.output}")
     if "quality" in out:
         q = out["quality"]
         print(f"quality vs {args.reference}: PSNR {q['psnr']:.2f} dB, SSIM {q['ssim']:.4f}, "
