@@ -8,7 +8,8 @@ import errno
 import os
 import sys
 
-from clrecon.bench.options import parse_size, parse_value
+from clrecon.bench import options
+from clrecon.bench.options import parse_size
 
 # -- argument types --------------------------------------------------------------------------
 
@@ -167,19 +168,9 @@ def user_frames(args) -> list[tuple[str, str]]:
 # -- methods and knobs -----------------------------------------------------------------------
 
 def parse_knobs(items) -> dict:
-    """``--knob NAME=VALUE`` options as a dict (values as in ``clrecon table``'s variants;
-    unlike :func:`clrecon.bench.options.parse_knobs` a blank item is refused, and the
-    messages name the option as the user spelled it)."""
-    knobs = {}
-    for item in items or []:
-        name, eq, value = item.partition("=")
-        name = name.strip()
-        if not eq or not name:
-            raise ValueError(f"--knob {item!r}: expected NAME=VALUE (e.g. --knob tile=8)")
-        if name in knobs:
-            raise ValueError(f"--knob {name}: given twice")
-        knobs[name] = parse_value(value.strip())
-    return knobs
+    """``--knob NAME=VALUE`` options as a dict (values as in ``clrecon table``'s variants),
+    the messages naming the option as the user spelled it."""
+    return options.parse_knobs(items or [], "--knob", " (e.g. --knob tile=8)")
 
 
 def check_knob_names(method: str, knobs: dict, what: str = "") -> None:
