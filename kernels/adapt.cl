@@ -36,6 +36,7 @@
  * component count floats; the launch covers n as above (the kernel guards the tail).
  */
 #include "common.h"
+#include "limits.h"
 
 #ifndef WG
 #define WG 128   // local size (required work-group size)
@@ -102,13 +103,11 @@
 #define OFF_MOTION 0
 #endif
 
-#define ADAPT_MISS_DEPTH 1e30f
-
 /* TLFR perspective motion -> linear screen motion (see the header). */
 inline float2 adapt_tlfr_motion(float2 p, float w, float2 lens, float t, float3 mv, float c0,
                                 float c1)
 {
-    if (!(w > 0.0f && w < ADAPT_MISS_DEPTH))
+    if (!(w > 0.0f && w < MISS_DEPTH))
         return (float2)(0.0f);
     const float w0 = w - t * mv.z;
     const float w1 = w + (1.0f - t) * mv.z;

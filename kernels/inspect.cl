@@ -69,9 +69,10 @@
  * (samples per work-item), CONTIGUOUS (the visiting order above). Compile-time (set by
  * clrecon/core/inspect.py): HAS_COLOR, HAS_POSITION, HAS_LENS, HAS_TIME, HAS_MOTION (0/1),
  * MISS_DEPTH, POS_TOL, MIN_DEPTH, COLOR_MAX, MOTION_MAX (exact float literals), LENS_R2_MAX
- * (exact double literal).
+ * (exact double literal); their defaults are in limits.h.
  */
 #include "common.h"
+#include "limits.h"
 
 #ifndef WG_SIZE
 #define WG_SIZE 256  // work-group size (power of two, >= NSLOT)
@@ -96,24 +97,6 @@
 #endif
 #ifndef HAS_MOTION
 #define HAS_MOTION 1
-#endif
-#ifndef MISS_DEPTH
-#define MISS_DEPTH 0x1.93e594p+99f   // float32(1e30), clrecon.core.samples.MISS_DEPTH
-#endif
-#ifndef POS_TOL
-#define POS_TOL 0x1.a36e2ep-14f      // float32(1e-4), clrecon.core.samples.POSITION_TOLERANCE
-#endif
-#ifndef LENS_R2_MAX
-#define LENS_R2_MAX 0x1.000d1b9c68abep+0  // (1 + 1e-4)^2 in double, LENS_TOLERANCE
-#endif
-#ifndef MIN_DEPTH
-#define MIN_DEPTH 0x1.79ca1p-67f         // float32(1e-20), clrecon.core.samples.MIN_DEPTH
-#endif
-#ifndef COLOR_MAX
-#define COLOR_MAX 0x1.93e594p+99f        // float32(1e30), clrecon.core.samples.COLOR_MAX
-#endif
-#ifndef MOTION_MAX
-#define MOTION_MAX 0x1p+16f              // clrecon.core.samples.MOTION_MAX
 #endif
 
 #define NRULE 7

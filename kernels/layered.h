@@ -30,6 +30,7 @@
  * composite's input): NCH planes of FT x FT floats per slot, filtered pixel (i, j) in
  * [-1, T/s]^2 at (j + 1) FT + (i + 1) (layered_filtered_item, layered_filtered_at).
  */
+#include "limits.h"
 #ifndef CLRECON_LAYERED_H
 #define CLRECON_LAYERED_H
 
@@ -56,7 +57,6 @@
 #define NCH 5
 #define DMAX (TILE + 2 * GMAX)
 #define FT (TILE + 2)      /* filtered grid side: the tile in grid pixels plus a 1-px border */
-#define MISS_DEPTH 1e30f
 
 enum { P_COUNT, P_LO, P_HI, P_A, P_BX, P_BY, P_SU, P_SV, P_COS, P_SIN, P_SHU, P_SHV, P_BETA,
        P_GAMMA, P_SCALE, P_GUARD, P_REACH, P_DIM, P_AXIS };

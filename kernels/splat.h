@@ -12,6 +12,7 @@
 #define CLRECON_SPLAT_H
 
 #include "common.h"
+#include "limits.h"
 
 #ifndef SPP
 #define SPP 1
@@ -22,8 +23,6 @@
 #ifndef NLAYERS
 #define NLAYERS 1
 #endif
-
-#define MISS_DEPTH 1e30f
 
 __attribute__((always_inline)) inline float splat_coc(const float z, const float c0,
                                                       const float c1)

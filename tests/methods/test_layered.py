@@ -267,5 +267,6 @@ def test_layered_header_leaves_other_kernels_hashes_alone():
 
     assert {p.name for p in _included_headers(kernel_source("box"))} == {"common.h"}
     assert {p.name for p in _included_headers(kernel_source("reproject"))} == {
-        "common.h", "layered.h", "reproject_lanes.h"}
-    assert {p.name for p in _included_headers(kernel_source("layered_composite"))} == {"layered.h"}
+        "common.h", "layered.h", "limits.h", "reproject_lanes.h"}
+    assert {p.name for p in _included_headers(kernel_source("layered_composite"))} == {
+        "layered.h", "limits.h"}
