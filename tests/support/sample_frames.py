@@ -56,6 +56,29 @@ def random_frame(rng, h=6, w=7, s=5, miss=0.2, model=MODEL, depths=(0.3, 40.0),
     )
 
 
+def method_frame(rng, h=11, w=13, s=4, aperture=8.0, misses=True, focus_ties=False,
+                 motion=True, moving=0.3, motion_sigma=4.0) -> SampleBuffer:
+    """Random valid frame for a method's tests: depths 2.2..40 around a focus at 4 (CoC up to
+    ~|aperture| px), ``misses`` (a tenth at inf), ``focus_ties`` (a tenth at exactly the
+    focus depth: equal depths), and ``moving`` of the samples with N(0, motion_sigma) motion."""
+    model = CocModel.from_focus(aperture_px=aperture, focus_depth=4.0)
+    buf = SampleBuffer.zeros(h, w, s, model)
+    buf.position[:] = buf.position - 0.5 + rng.uniform(0.0, 0.999, buf.position.shape)
+    buf.depth[:] = rng.uniform(2.2, 40.0, buf.depth.shape)
+    if misses:
+        buf.depth[rng.uniform(size=buf.depth.shape) < 0.1] = np.inf
+    if focus_ties:
+        buf.depth[rng.uniform(size=buf.depth.shape) < 0.1] = 4.0
+    buf.lens[:] = disc_points(rng, (h, w, s))
+    buf.time[:] = rng.uniform(0, 1, buf.time.shape)
+    buf.color[:] = rng.exponential(1.0, buf.color.shape)
+    if motion:
+        share = rng.uniform(size=buf.depth.shape) < moving
+        buf.motion[:] = np.where(share[..., None], rng.normal(0, motion_sigma, buf.motion.shape),
+                                 0.0)
+    return buf.validate()
+
+
 def message_of(fn, buf) -> str | None:
     """The ``ValueError`` text ``fn(buf)`` raises, ``None`` if it raises none."""
     try:

@@ -134,6 +134,15 @@ def _largest(fits, hi: int) -> int:
     return best
 
 
+def _fitted(name: str, value, hi: int, why: str, advice: str) -> int:
+    """``value`` of the knob ``name`` checked against ``hi``, the largest that fits the
+    device (``why`` says for what); none fitting is a ``ValueError`` ending in ``advice``."""
+    if hi == 0:
+        check_int(name, value, 1, INT32_MAX)
+        raise ValueError(f"{name}: no {name} fits {why}{advice}")
+    return check_int(name, value, 1, hi, what=why)
+
+
 def check_knobs(context, info, scales, dof_layers, exponent, smooth_motion, diameter_scale,
                 sort, tile, tile_merge, group, specialize) -> tuple:
     """Every knob of :class:`SweepPipeline` checked (type and range; see
@@ -166,26 +175,19 @@ def check_knobs(context, info, scales, dof_layers, exponent, smooth_motion, diam
         tile = check_int("tile", tile, 1, INT32_MAX, what=f"(unused by sort={plan!r})")
     if group is not None and plan != "block":
         group = check_int("group", group, 1, INT32_MAX, what=f"(unused by sort={plan!r})")
+    limits = (f"local memory {dev.local_mem_size} bytes, max work-group size "
+              f"{dev.max_work_group_size})")
     if tile is not None and plan == "tile":
-        hi = fit_tile(dev, scales, info.spp, dev.max_work_group_size)
-        why = (f"for sort='tile' with {scales} scales at {info.spp} spp on this device "
-               f"(local memory {dev.local_mem_size} bytes, max work-group size "
-               f"{dev.max_work_group_size})")
-        if hi == 0:
-            check_int("tile", tile, 1, INT32_MAX)
-            raise ValueError(f"tile: no tile fits {why}; use sort='pixel'")
-        tile = check_int("tile", tile, 1, hi, what=why)
+        tile = _fitted("tile", tile, fit_tile(dev, scales, info.spp, dev.max_work_group_size),
+                       f"for sort='tile' with {scales} scales at {info.spp} spp on this "
+                       f"device ({limits}", "; use sort='pixel'")
     if group is not None and plan == "block":
-        hi = fit_group(dev, scales, info.spp, dev.max_work_group_size)
-        why = (f"for sort='block' with {scales} scales at {info.spp} spp on this device "
-               f"(4x4 blocks per work-group; local memory {dev.local_mem_size} bytes, max "
-               f"work-group size {dev.max_work_group_size})")
-        if hi == 0:
-            check_int("group", group, 1, INT32_MAX)
-            raise ValueError(f"group: no group fits {why}" + (
-                "; the block sort takes at most 255 spp" if info.spp > 255 else "")
-                + ": use sort='tile' or 'pixel'")
-        group = check_int("group", group, 1, hi, what=why)
+        group = _fitted("group", group, fit_group(dev, scales, info.spp,
+                                                  dev.max_work_group_size),
+                        f"for sort='block' with {scales} scales at {info.spp} spp on this "
+                        f"device (4x4 blocks per work-group; {limits}",
+                        ("; the block sort takes at most 255 spp" if info.spp > 255 else "")
+                        + ": use sort='tile' or 'pixel'")
     return (scales, dof_layers, exponent, smooth_motion, diameter_scale, sort, tile,
             tile_merge, group, specialize)
 
