@@ -7,6 +7,7 @@
  *   safeguard_stats  per pixel: the box image and, in linear radiance, mean over RGB,
  *                    d2 = |m - box|^2, vb = k |boxA - boxB|^2, vm = k |mA - mB|^2 with
  *                    k = ha hb / S^2 (the variance of the full-frame estimate from its halves)
+ *   safeguard_rows   the windowed sums' row segments (3 and 7 wide), for the blend
  *   safeguard_blend  windowed means (3x3 and 7x7, over the pixels inside the image), the bias
  *                    estimate b2 = max(0, mean7(e), mean3(e) - 2 se3(e)), e = d2 - vm - vb
  *                    (se3: the standard error of the 3x3 mean), the method's
@@ -15,9 +16,9 @@
  *                    (box's own: mean3(vb), unbiased)
  * Arguments: split: src (P, S, C) into dst_a (P, ha, C) and dst_b (P, S - ha, C), C = `width`
  * floats a sample; stats: color (H, W, S, 3), m, ma, mb (H, W, 3) the method's images of the
- * frame and of its halves, box (H, W, 3), stats float4 (H, W); blend: out (H, W, 3), error
- * (H, W). Preconditions: 1 <= ha < S (both halves hold samples). No compile-time options;
- * the local sizes are launch parameters only.
+ * frame and of its halves, box (H, W, 3), stats float4 (H, W); rows: rows3, rows7 float4
+ * (H, W); blend: out (H, W, 3), error (H, W). Preconditions: 1 <= ha < S (both halves hold
+ * samples). No compile-time options; the local sizes are launch parameters only.
  */
 #include "common.h"
 
@@ -88,71 +89,134 @@ __kernel void safeguard_stats(__global const float *color, __global const float 
     stats[p] = (float4)(d2, vb, vm, (float)e);
 }
 
-/* mode 0: box (image = box, error = mean3(vb)); 1: the method alone (image = m, error = its
- * estimate); 2: the blend. error may be written or not (write_error). */
-__kernel void safeguard_blend(__global const float4 *stats, __global const float *box,
-                              __global const float *m, __global float *out,
-                              __global float *error, int width, int height, int mode,
-                              int write_error)
+/* 2^n for n <= 0, flushed to 0 below float32's normal range (n < -126): a pixel that much
+ * dimmer than its window's brightest adds nothing measurable. Built from the bits, not
+ * ldexp: a select the vectoriser keeps in lanes, where ldexp is a library call. */
+__attribute__((always_inline)) inline float pow2_nonpos(int n)
+{
+    return n < -126 ? 0.0f : as_float((n + 127) << 23);
+}
+
+/* The windowed means, separably: safeguard_rows sums each pixel's row segments (3 and 7
+ * wide, clipped to the image) in units of the segment's largest exponent; safeguard_blend
+ * sums 3 and 7 of those segments down the column, each rescaled to the 7x7 window's
+ * largest exponent (exact powers of two, so the result is the 2D sums' up to the order of
+ * the additions). Unrolled fixed trip counts with clamped loads and masks (PoCL, 1280x720:
+ * the single 7x7 kernel took 190 ms, the two take about 50). rows3 = (vb, vm, e, e^2) over
+ * 3, rows7 = (e, vb, exponent of the 3-wide segment, of the 7-wide one) over 7, with
+ * e = d2 - vm - vb. */
+__kernel void safeguard_rows(__global const float4 *stats, __global float4 *rows3,
+                             __global float4 *rows7, int width, int height)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    if (x >= width || y >= height)
-        return;
-    const int4 win = window_clip(x, y, 3, width, height);  /* the 7x7 window */
-    int emax = INT_MIN;
-    for (int yy = win.y; yy <= win.w; ++yy)
-        for (int xx = win.x; xx <= win.z; ++xx)
-            emax = max(emax, (int)stats[pixel_index(xx, yy, width)].w);
-    float vb3 = 0.0f, vb7 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f;
-    int n3 = 0, n7 = 0;
-    for (int yy = win.y; yy <= win.w; ++yy) {
-        for (int xx = win.x; xx <= win.z; ++xx) {
-            float4 s = stats[pixel_index(xx, yy, width)];
-            /* to the window's units; a pixel far dimmer than the window's brightest -> 0 */
-            const int shift = max(2 * ((int)s.w - emax), -252);
-            s.xyz *= ldexp(1.0f, shift); /* scalar ldexp: Oclgrind's vector form misbehaves */
+    if (x < width && y < height) {
+        const int row = y * width;
+        int e3max = INT_MIN, e7max = INT_MIN;
+        #pragma unroll
+        for (int k = -3; k <= 3; ++k) {
+            const int xx = x + k;
+            const int ex = (int)stats[row + clamp(xx, 0, width - 1)].w;
+            const bool in = xx >= 0 && xx < width;
+            e7max = in ? max(e7max, ex) : e7max;
+            e3max = (in && k >= -1 && k <= 1) ? max(e3max, ex) : e3max;
+        }
+        float vb3 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f, vb7 = 0.0f;
+        #pragma unroll
+        for (int k = -3; k <= 3; ++k) {
+            const int xx = x + k;
+            const float4 s = stats[row + clamp(xx, 0, width - 1)];
+            const bool in = xx >= 0 && xx < width;
+            const bool in3 = in && k >= -1 && k <= 1;
+            /* to the segment's units */
+            const float f7 = in ? pow2_nonpos(2 * ((int)s.w - e7max)) : 0.0f;
+            const float f3 = in3 ? pow2_nonpos(2 * ((int)s.w - e3max)) : 0.0f;
             const float e = s.x - s.z - s.y;
-            e7 += e;
-            vb7 += s.y;
-            ++n7;
-            if (abs(yy - y) <= 1 && abs(xx - x) <= 1) {  /* the 3x3 window */
-                vb3 += s.y;
-                vm3 += s.z;
-                e3 += e;
-                ee3 += e * e;
-                ++n3;
+            e7 += f7 * e;
+            vb7 += f7 * s.y;
+            vb3 += f3 * s.y;
+            vm3 += f3 * s.z;
+            e3 += f3 * e;
+            ee3 += (f3 * e) * (f3 * e);
+        }
+        const int p = row + x;
+        rows3[p] = (float4)(vb3, vm3, e3, ee3);
+        rows7[p] = (float4)(e7, vb7, (float)e3max, (float)e7max);
+    }
+}
+
+/* mode 0: box (image = box, error = mean3(vb)); 1: the method alone (image = m, error = its
+ * estimate); 2: the blend. error may be written or not (write_error). */
+__kernel void safeguard_blend(__global const float4 *rows3, __global const float4 *rows7,
+                              __global const float *box, __global const float *m,
+                              __global float *out, __global float *error, int width,
+                              int height, int mode, int write_error)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x < width && y < height) {
+        int emax = INT_MIN;
+        #pragma unroll
+        for (int k = -3; k <= 3; ++k) {
+            const int yy = y + k;
+            const int ex = (int)rows7[clamp(yy, 0, height - 1) * width + x].w;
+            emax = (yy >= 0 && yy < height) ? max(emax, ex) : emax;
+        }
+        float vb3 = 0.0f, vb7 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f;
+        #pragma unroll
+        for (int k = -3; k <= 3; ++k) {
+            const int yy = y + k;
+            const int q = clamp(yy, 0, height - 1) * width + x;
+            const float4 r7 = rows7[q];
+            const bool in = yy >= 0 && yy < height;
+            const bool in3 = in && k >= -1 && k <= 1;
+            const float f7 = in ? pow2_nonpos(2 * ((int)r7.w - emax)) : 0.0f;
+            e7 += f7 * r7.x;
+            vb7 += f7 * r7.y;
+            if (in3) {
+                const float4 r3 = rows3[q];
+                const float f3 = pow2_nonpos(2 * ((int)r7.z - emax));
+                vb3 += f3 * r3.x;
+                vm3 += f3 * r3.y;
+                e3 += f3 * r3.z;
+                ee3 += (f3 * f3) * r3.w;
             }
         }
+        /* the windows' pixel counts inside the image */
+        const int c3 = min(x + 1, width - 1) - max(x - 1, 0) + 1;
+        const int c7 = min(x + 3, width - 1) - max(x - 3, 0) + 1;
+        const int r3 = min(y + 1, height - 1) - max(y - 1, 0) + 1;
+        const int r7 = min(y + 3, height - 1) - max(y - 3, 0) + 1;
+        const float n3 = (float)(c3 * r3), n7 = (float)(c7 * r7);
+        /* box's variance over 3x3, or 7x7 where larger: a pixel whose own samples all missed
+         * a rare contributor (a blurred highlight) has halves that agree and a variance near
+         * 0, while its neighbours' samples show the spread */
+        vb3 /= n3;
+        const float vbw = fmax(vb3, vb7 / n7);
+        vm3 /= n3;
+        /* the 7x7 mean, or the 3x3 one where it stands two standard errors above zero (a
+         * bias along a thin edge, which the wider window dilutes; noise alone rarely gets
+         * there) */
+        const float mu3 = e3 / n3;
+        const float se3 = sqrt(fmax(ee3 / n3 - mu3 * mu3, 0.0f) / n3);
+        const float b2 = fmax(0.0f, fmax(e7 / n7, mu3 - 2.0f * se3));
+        const float err_m = b2 + vm3;
+        const int p = pixel_index(x, y, width);
+        const float3 bx = load3(box, p);
+        float3 img;
+        float err;
+        if (mode == 0) {
+            img = bx;
+            err = vb3;
+        } else if (mode == 1) {
+            img = load3(m, p);
+            err = err_m;
+        } else {
+            const float den = vbw + err_m;
+            const float w = den > 0.0f ? vbw / den : 0.0f;
+            img = bx + w * (load3(m, p) - bx);
+            err = w * w * err_m + (1.0f - w) * (1.0f - w) * vbw;
+        }
+        vstore3(img, p, out);
+        if (write_error) /* back to radiance^2; beyond float32 (colours above ~1e19): FLT_MAX */
+            error[p] = fmin(ldexp(err, 2 * emax), FLT_MAX);
     }
-    /* box's variance over 3x3, or 7x7 where larger: a pixel whose own samples all missed a
-     * rare contributor (a blurred highlight) has halves that agree and a variance near 0,
-     * while its neighbours' samples show the spread */
-    vb3 /= (float)n3;
-    const float vbw = fmax(vb3, vb7 / (float)n7);
-    vm3 /= (float)n3;
-    /* the 7x7 mean, or the 3x3 one where it stands two standard errors above zero (a bias
-     * along a thin edge, which the wider window dilutes; noise alone rarely gets there) */
-    const float mu3 = e3 / (float)n3;
-    const float se3 = sqrt(fmax(ee3 / (float)n3 - mu3 * mu3, 0.0f) / (float)n3);
-    const float b2 = fmax(0.0f, fmax(e7 / (float)n7, mu3 - 2.0f * se3));
-    const float err_m = b2 + vm3;
-    const int p = pixel_index(x, y, width);
-    const float3 bx = load3(box, p);
-    float3 img;
-    float err;
-    if (mode == 0) {
-        img = bx;
-        err = vb3;
-    } else if (mode == 1) {
-        img = load3(m, p);
-        err = err_m;
-    } else {
-        const float den = vbw + err_m;
-        const float w = den > 0.0f ? vbw / den : 0.0f;
-        img = bx + w * (load3(m, p) - bx);
-        err = w * w * err_m + (1.0f - w) * (1.0f - w) * vbw;
-    }
-    vstore3(img, p, out);
-    if (write_error) /* back to radiance^2; beyond float32 (colours above ~1e19): FLT_MAX */
-        error[p] = fmin(ldexp(err, 2 * emax), FLT_MAX);
 }

@@ -43,7 +43,8 @@ before adding, so the image is exact at any valid colour, and the error image sa
 float32's largest value (colours above ~1e19).
 
 Cost: the method runs on the frame and on both halves (about twice its own time), plus one
-split copy of the fields and two cheap passes. ``safeguard=False`` is the papers' method
+split copy of the fields and three cheap passes (the statistics, and the windowed means in
+two separable passes: row segments, then columns and the blend). ``safeguard=False`` is the papers' method
 alone (``mode="paper"`` in reports); ``estimate_error=True`` also returns the error image.
 """
 from __future__ import annotations
@@ -124,11 +125,12 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
 
 # -- passes ----------------------------------------------------------------------------------
 class SafeguardPasses:
-    """The three kernels of ``kernels/safeguard.cl``."""
+    """The four kernels of ``kernels/safeguard.cl``."""
 
     def __init__(self, context: cl.Context):
         self.split = get_kernel(context, "safeguard", "safeguard_split")
         self.stats = get_kernel(context, "safeguard", "safeguard_stats")
+        self.rows = get_kernel(context, "safeguard", "safeguard_rows")
         self.blend = get_kernel(context, "safeguard", "safeguard_blend")
 
     def split_field(self, queue, src, dst_a, dst_b, pixels, spp, width, wait_for=None):
@@ -145,11 +147,16 @@ class SafeguardPasses:
                             np.int32(spp), np.int32(ha), np.int32(has_method))
         return cl.enqueue_nd_range_kernel(queue, self.stats, (w, h), None, wait_for=wait_for)
 
-    def run_blend(self, queue, stats, box, m, out, error, w, h, mode, write_error,
-                  wait_for=None):
-        self.blend.set_args(stats, box, m, out, error, np.int32(w), np.int32(h),
+    def run_blend(self, queue, stats, rows3, rows7, box, m, out, error, w, h, mode,
+                  write_error, wait_for=None):
+        """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
+        ("safeguard_blend", ev)]."""
+        self.rows.set_args(stats, rows3, rows7, np.int32(w), np.int32(h))
+        ev = cl.enqueue_nd_range_kernel(queue, self.rows, (w, h), None, wait_for=wait_for)
+        self.blend.set_args(rows3, rows7, box, m, out, error, np.int32(w), np.int32(h),
                             np.int32(mode), np.int32(write_error))
-        return cl.enqueue_nd_range_kernel(queue, self.blend, (w, h), None, wait_for=wait_for)
+        return [("safeguard_rows", ev), ("safeguard_blend", cl.enqueue_nd_range_kernel(
+            queue, self.blend, (w, h), None, wait_for=[ev]))]
 
 
 class Safeguarded(Pipeline):
@@ -188,7 +195,8 @@ class Safeguarded(Pipeline):
                 method, context, replace(info, spp=hb), **knobs)
         npx = info.width * info.height
         inner_fields = tuple(f for f in FIELDS if f in set(self.full.plan.fields) | {"color"})
-        temps = {"m": npx * 12, "box": npx * 12, "stats": npx * 16, "error": npx * 4}
+        temps = {"m": npx * 12, "box": npx * 12, "stats": npx * 16, "rows3": npx * 16,
+                 "rows7": npx * 16, "error": npx * 4}
         steps = []
         if not is_box:
             temps |= {"ma": npx * 12, "mb": npx * 12}
@@ -259,9 +267,9 @@ class Safeguarded(Pipeline):
         def run(queue, f, wait_for):
             b = f.buffers
             m = b["m"] if self.mode != MODE_BOX else b["box"]
-            ev = self.passes.run_blend(queue, b["stats"], b["box"], m, b["out"], b["error"],
-                                       f.width, f.height, self.mode, 1, wait_for)
-            return [("safeguard_blend", ev)]
+            return self.passes.run_blend(queue, b["stats"], b["rows3"], b["rows7"], b["box"], m,
+                                         b["out"], b["error"], f.width, f.height, self.mode, 1,
+                                         wait_for)
         return run
 
     # -- protocol ----------------------------------------------------------------------------
