@@ -294,8 +294,9 @@ __kernel void splat_mip_draw_tiles(__global float *bins, __global float *img,
 }
 
 /* Level l's image, bilinearly, added into level l - 1: one work-item per padded pixel of
- * level l - 1 (z = layer). Level-l pixel i (padded) has its centre at child coordinate
- * 2 (i - P_l) + 1/2 + P_{l-1}; a child pixel j reads its parent at
+ * level l - 1, for every layer (the taps' addresses and weights once for all layers: half
+ * the time of a work-item per layer on PoCL). Level-l pixel i (padded) has its centre at
+ * child coordinate 2 (i - P_l) + 1/2 + P_{l-1}; a child pixel j reads its parent at
  * (j - P_{l-1}) / 2 - 1/4 + P_l. */
 __kernel void splat_mip_upsample(__global float *img, __global const int4 *lv, const int l,
                                  const int margin)
@@ -304,28 +305,29 @@ __kernel void splat_mip_upsample(__global float *img, __global const int4 *lv, c
      * level 0, what the composite reads; the next upsample reads within 3 of its frame) */
     const int4 gc = lv[l - 1], gp = lv[l];
     const int x = get_global_id(0) + gc.w - margin, y = get_global_id(1) + gc.w - margin;
-    const int layer = get_global_id(2);
-    if (x >= gc.y - gc.w + margin || y >= gc.z - gc.w + margin)
-        return;
-    const float ux = 0.5f * (float)(x - gc.w) - 0.25f + (float)gp.w;
-    const float uy = 0.5f * (float)(y - gc.w) - 0.25f + (float)gp.w;
-    const float fx0 = floor(ux), fy0 = floor(uy);
-    const float fx = ux - fx0, fy = uy - fy0;
-    const int ix = (int)fx0, iy = (int)fy0;
-    __global const float *par = img + ((size_t)gp.x + (size_t)layer * gp.z * gp.y) * 4;
-    float4 acc = (float4)(0.0f);
-    for (int dy = 0; dy < 2; ++dy) {
-        const int py = iy + dy;
-        if (py < 0 || py >= gp.z)
-            continue;
-        const float wy = dy ? fy : 1.0f - fy;
-        for (int dx = 0; dx < 2; ++dx) {
-            const int px = ix + dx;
-            if (px < 0 || px >= gp.y)
-                continue;
-            acc += (wy * (dx ? fx : 1.0f - fx)) * vload4((size_t)py * gp.y + px, par);
+    if (x < gc.y - gc.w + margin && y < gc.z - gc.w + margin) {
+        const float ux = 0.5f * (float)(x - gc.w) - 0.25f + (float)gp.w;
+        const float uy = 0.5f * (float)(y - gc.w) - 0.25f + (float)gp.w;
+        const float fx0 = floor(ux), fy0 = floor(uy);
+        const float fx = ux - fx0, fy = uy - fy0;
+        const int ix = (int)fx0, iy = (int)fy0;
+        /* the four taps at clamped addresses, a tap outside the parent weighted 0: no
+         * branch, and the same sum (0 x a finite value adds nothing) */
+        const int px0 = clamp(ix, 0, gp.y - 1), px1 = clamp(ix + 1, 0, gp.y - 1);
+        const int r0 = clamp(iy, 0, gp.z - 1) * gp.y, r1 = clamp(iy + 1, 0, gp.z - 1) * gp.y;
+        const float wx0 = (ix >= 0 && ix < gp.y) ? 1.0f - fx : 0.0f;
+        const float wx1 = (ix + 1 >= 0 && ix + 1 < gp.y) ? fx : 0.0f;
+        const float wy0 = (iy >= 0 && iy < gp.z) ? 1.0f - fy : 0.0f;
+        const float wy1 = (iy + 1 >= 0 && iy + 1 < gp.z) ? fy : 0.0f;
+        for (int layer = 0; layer < NLAYERS; ++layer) {
+            __global const float4 *par = (__global const float4 *)img + gp.x
+                                         + layer * gp.z * gp.y;
+            float4 acc = (wy0 * wx0) * par[r0 + px0];
+            acc += (wy0 * wx1) * par[r0 + px1];
+            acc += (wy1 * wx0) * par[r1 + px0];
+            acc += (wy1 * wx1) * par[r1 + px1];
+            __global float4 *dst = (__global float4 *)img + gc.x + (layer * gc.z + y) * gc.y + x;
+            *dst += 0.25f * acc;
         }
     }
-    __global float *dst = img + ((size_t)gc.x + ((size_t)layer * gc.z + y) * gc.y + x) * 4;
-    vstore4(vload4(0, dst) + 0.25f * acc, 0, dst);
 }

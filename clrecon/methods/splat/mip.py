@@ -197,7 +197,7 @@ class MipSplat:
             _, nw, nh, pad = (int(v) for v in g.levels[level - 1])
             gx, gy = nw - 2 * pad + 2 * margin, nh - 2 * pad + 2 * margin
             self.up_kernel.set_args(img, self.levels, np.int32(level), np.int32(margin))
-            ev = cl.enqueue_nd_range_kernel(queue, self.up_kernel, (gx, gy, g.layers), None,
+            ev = cl.enqueue_nd_range_kernel(queue, self.up_kernel, (gx, gy), None,
                                             wait_for=wait_for)
             self.events.append(("splat_mip_upsample", ev))
             wait_for = [ev]
