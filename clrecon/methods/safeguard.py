@@ -44,8 +44,9 @@ float32's largest value (colours above ~1e19).
 
 Cost: the method runs on the frame and on both halves (about twice its own time), plus one
 split copy of the fields and three cheap passes (the statistics, and the windowed means in
-two separable passes: row segments, then columns and the blend). ``safeguard=False`` is the papers' method
-alone (``mode="paper"`` in reports); ``estimate_error=True`` also returns the error image.
+two separable passes: row segments, then columns and the blend). ``safeguard=False`` is the
+papers' method alone (``mode="paper"`` in reports); ``estimate_error=True`` also returns the
+error image.
 """
 from __future__ import annotations
 
