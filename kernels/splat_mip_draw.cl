@@ -197,6 +197,41 @@ __attribute__((always_inline)) inline void mip_row(const mip_psf_t *p, const int
     }
 }
 
+/* Draw a disc (rho >= 3/2, no motion) with plain adds, row by row: each row's outer chord
+ * in one loop, four pixels at a time (inside the inner chord the antialiased disc is 1, so
+ * the one expression serves the rim and the inside; mip_row's split into runs is slower
+ * here: PoCL ran the draw pass 1.4x faster this way on deep 1280x720). */
+__attribute__((always_inline)) inline void mip_disc_plain(const mip_psf_t *p, const float4 wv,
+                                                         __global float *base, const int nw,
+                                                         const int pad)
+{
+    const float ro = p->rho + 0.5f;
+    for (int y = p->y0; y <= p->y1; ++y) {
+        const float dy = (float)y + 0.5f - p->c.y, dy2 = dy * dy;
+        if (dy2 > ro * ro)
+            continue;
+        /* the row's pixels as mip_row has them: the outer chord and one pixel of slack */
+        const float h = sqrt(ro * ro - dy2);
+        const int xa = max(p->x0, (int)floor(p->c.x - h - 0.5f));
+        const int xb = min(p->x1, (int)floor(p->c.x + h - 0.5f) + 1);
+        __global float4 *row = (__global float4 *)(base + (size_t)(y + pad) * nw * 4) + pad;
+        int x = xa;
+        for (; x + 3 <= xb; x += 4) {
+            const float4 dx = ((float4)((float)x, (float)x + 1.0f, (float)x + 2.0f,
+                                        (float)x + 3.0f) + 0.5f) - p->c.x;
+            const float4 v = clamp(ro - sqrt(dx * dx + dy2), 0.0f, 1.0f);
+            row[x] += v.x * wv;
+            row[x + 1] += v.y * wv;
+            row[x + 2] += v.z * wv;
+            row[x + 3] += v.w * wv;
+        }
+        for (; x <= xb; ++x) {
+            const float dx = (float)x + 0.5f - p->c.x;
+            row[x] += clamp(ro - sqrt(dx * dx + dy2), 0.0f, 1.0f) * wv;
+        }
+    }
+}
+
 /* Draw bin (qx, qy) of `layer` at level l into img, one work-item alone. */
 __attribute__((always_inline)) inline void mip_draw_one(const int l, const int layer,
                                                        const int qx, const int qy,
@@ -228,6 +263,10 @@ __attribute__((always_inline)) inline void mip_draw_one(const int l, const int l
     const float4 wv = p.b0 * (1.0f / sum);
     const int4 g = lv[l];
     __global float *base = img + ((size_t)g.x + (size_t)layer * g.z * g.y) * 4;
+    if (!atomic && p.len < 0.5f && p.rho >= 1.5f) {
+        mip_disc_plain(&p, wv, base, g.y, g.w);
+        return;
+    }
     for (int y = p.y0; y <= p.y1; ++y) {
         __global float *row = base + (size_t)(y + g.w) * g.y * 4;
         mip_row(&p, y, &xa, &xb, &ia, &ib, &vin);
