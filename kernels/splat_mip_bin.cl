@@ -148,7 +148,8 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
  * write the same bin. Along each row of its tile, ROW_MAX samples at a time: the records
  * go into local memory in one loop over contiguous samples, which the compiler vectorises
  * (the same arithmetic interleaved with the adds ran ~10x slower on PoCL), then are added
- * in order: plain adds, a fixed order (reproducible). */
+ * in order, each run of records into one bin summed first: plain adds, a fixed order
+ * (reproducible). */
 __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int height,
                                   const int tile, const int k, const int phase_x,
                                   const int phase_y)
@@ -177,9 +178,25 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
                 r7[j] = v7;
                 r8[j] = v8;
             }
-            for (int j = 0; j < n; ++j)
-                if (ridx[j] >= 0)
-                    mip_bin_add(bins, ridx[j], r0[j], r1[j], r2[j], r3[j], r4[j], r5[j],
-                                r6[j], r7[j], r8[j], 0);
+            /* consecutive samples that share a bin (a pixel's samples, a coarse level's
+             * neighbours) are summed in registers first: one add into the bin per run */
+            int cur = -1;
+            float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f, a4 = 0.0f, a5 = 0.0f,
+                  a6 = 0.0f, a7 = 0.0f, a8 = 0.0f;
+            for (int j = 0; j < n; ++j) {
+                const int idx = ridx[j];
+                if (idx != cur) {
+                    if (cur >= 0)
+                        mip_bin_add(bins, cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, 0);
+                    cur = idx;
+                    a0 = r0[j]; a1 = r1[j]; a2 = r2[j]; a3 = r3[j]; a4 = r4[j];
+                    a5 = r5[j]; a6 = r6[j]; a7 = r7[j]; a8 = r8[j];
+                } else {
+                    a0 += r0[j]; a1 += r1[j]; a2 += r2[j]; a3 += r3[j]; a4 += r4[j];
+                    a5 += r5[j]; a6 += r6[j]; a7 += r7[j]; a8 += r8[j];
+                }
+            }
+            if (cur >= 0)
+                mip_bin_add(bins, cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, 0);
         }
 }
