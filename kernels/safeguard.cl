@@ -42,14 +42,15 @@ inline float lum2(float3 d) { return (d.x * d.x + d.y * d.y + d.z * d.z) * (1.0f
 
 inline float3 load3(__global const float *a, int i) { return vload3(i, a); }
 
-/* has_method = 0: only the box statistics (m, ma, mb are not read).
+/* has_method = 0: only the box statistics (m, ma, mb are not read); 1: m is the method's
+ * image of the frame; 2: m is written, the halves' mean (ha mA + hb mB) / S.
  *
  * Range: colours up to 1e30 are valid, and their squares overflow float32. Each pixel's
  * statistics are therefore stored in units of 2^(2 e), e the binary exponent of the largest
  * value the pixel's statistics involve (stats.w = e); the blend rescales a window to its
  * largest e before adding (a pixel 2^-63 times dimmer than its window's brightest adds
  * nothing measurable to it). */
-__kernel void safeguard_stats(__global const float *color, __global const float *m,
+__kernel void safeguard_stats(__global const float *color, __global float *m,
                               __global const float *ma, __global const float *mb,
                               __global float *box, __global float4 *stats,
                               int width, int height, int spp, int ha, int has_method)
@@ -69,9 +70,14 @@ __kernel void safeguard_stats(__global const float *color, __global const float 
     const float3 a = sa / (float)ha, b = sb / (float)hb;
     float3 vm_ = full, vma = full, vmb = full;
     if (has_method) {
-        vm_ = load3(m, p);
         vma = load3(ma, p);
         vmb = load3(mb, p);
+        if (has_method == 2) {  /* the method's image: the mean of its halves' */
+            vm_ = ((float)ha * vma + (float)(spp - ha) * vmb) / (float)spp;
+            vstore3(vm_, p, m);
+        } else {
+            vm_ = load3(m, p);
+        }
     }
     const float3 big = fmax(fmax(fmax(fabs(a), fabs(b)), fmax(fabs(vm_), fabs(vma))),
                             fabs(vmb));

@@ -156,6 +156,10 @@ class Pipeline:
 
     name: ClassVar[str] = ""
     fields: tuple[str, ...] = tuple(FIELDS)
+    #: the method's weights do not depend on the sample count, so the mean of its images of
+    #: a frame's two halves has its image's bias and variance: the safeguard blends that
+    #: mean and skips a run on the frame (:mod:`clrecon.methods.safeguard`)
+    halves_mean: ClassVar[bool] = False
 
     def __init__(self, context: cl.Context, info: FrameInfo):
         self.context = context

@@ -8,7 +8,8 @@ wants to know where the image is wrong (to place its next samples).
 
 How. The frame's samples are split per pixel into two halves, A (samples ``0..ha-1``) and
 B (``ha..S-1``): two independent estimates of everything. The method runs on the frame
-(image ``m``) and on each half (``mA``, ``mB``); box is the samples' mean, ``boxA``/``boxB``
+(image ``m``; see below for the methods that take the halves' mean) and on each half
+(``mA``, ``mB``); box is the samples' mean, ``boxA``/``boxB``
 the halves'. With ``k = ha hb / S^2`` (``1/4`` for equal halves), per pixel, in linear
 radiance averaged over RGB:
 
@@ -42,9 +43,18 @@ pixel's statistics in units of its own binary exponent and rescale a window to i
 before adding, so the image is exact at any valid colour, and the error image saturates at
 float32's largest value (colours above ~1e19).
 
-Cost: the method runs on the frame and on both halves (about twice its own time), plus one
-split copy of the fields and three cheap passes (the statistics, and the windowed means in
-two separable passes: row segments, then columns and the blend). ``safeguard=False`` is the
+The method's image. A method whose weights do not depend on the sample count (sweep,
+splat: ``Pipeline.halves_mean``) blends the mean of its halves' images,
+``(ha mA + hb mB) / S``, in place of ``m``: its bias is the method's, its variance that of
+the frame's image (for an estimator linear in the samples exactly), and the run on the
+frame is saved. At 8 spp on the built-in scenes at 512x512 the blend's PSNR with the halves'
+mean is within -0.04 / +0.26 dB of the blend with the frame's image for both; layered's
+partitions and filters follow the samples' statistics, and its halves' mean lost 0.39 dB on
+``bokeh``, so layered runs on the frame as well.
+
+Cost: the method runs on both halves (and on the frame where it must), plus one split copy
+of the fields and three cheap passes (the statistics, and the windowed means in two
+separable passes: row segments, then columns and the blend). ``safeguard=False`` is the
 papers' method alone (``mode="paper"`` in reports); ``estimate_error=True`` also returns the
 error image.
 """
@@ -95,9 +105,12 @@ def _window_count(shape, r: int) -> np.ndarray:
 
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
-    method's images on the frame and on its halves (H, W, 3); float64."""
+    method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
+    the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``."""
     s = color.shape[2]
     ha, hb = halves(s)
+    if m is None and ma is not None:
+        m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
     c = color.astype(np.float64)
     sa, sb = c[:, :, :ha].sum(2), c[:, :, ha:].sum(2)
     box = (sa + sb) / s
@@ -143,6 +156,8 @@ class SafeguardPasses:
 
     def run_stats(self, queue, color, m, ma, mb, box, stats, w, h, spp, has_method,
                   wait_for=None):
+        """has_method: 0 box alone, 1 with the method's image m, 2 m written as the halves'
+        mean."""
         ha, _ = halves(spp)
         self.stats.set_args(color, m, ma, mb, box, stats, np.int32(w), np.int32(h),
                             np.int32(spp), np.int32(ha), np.int32(has_method))
@@ -188,6 +203,12 @@ class Safeguarded(Pipeline):
         # box's variance, and there is nothing to blend
         is_box = method == "box" or self.full.plan.name == BOX_PLAN
         self.mode = MODE_BOX if is_box else (MODE_BLEND if blend else MODE_METHOD)
+        # a method whose weights do not depend on the sample count (its class says so) gets
+        # the blend's method image from its halves, (ha mA + hb mB) / S, instead of a third
+        # run on the frame: the same bias and variance, a third less work. The error alone
+        # (MODE_METHOD) keeps the method's own image.
+        self.halves_mean = self.mode == MODE_BLEND and bool(
+            getattr(self.full, "halves_mean", False))
         ha, hb = halves(info.spp)
         self.half_a = self.half_b = None
         if not is_box:
@@ -207,12 +228,15 @@ class Safeguarded(Pipeline):
             steps.append(Step("safeguard_split", inner_fields,
                               tuple(f"{h}.{f}" for h in "ab" for f in inner_fields),
                               self._split_step(inner_fields)))
-            steps.append(Step(method, inner_fields, ("m",), self._inner_step()))
+            if not self.halves_mean:
+                steps.append(Step(method, inner_fields, ("m",), self._inner_step()))
             steps.append(Step(f"{method} (halves)",
                               tuple(f"{h}.{f}" for h in "ab" for f in inner_fields),
                               ("ma", "mb"), self._halves_step(inner_fields)))
-        steps.append(Step("safeguard_stats", ("color",) + (() if is_box else ("m", "ma", "mb")),
-                          ("box", "stats"), self._stats_step()))
+        images = () if is_box else ("ma", "mb") if self.halves_mean else ("m", "ma", "mb")
+        steps.append(Step("safeguard_stats", ("color",) + images,
+                          ("box", "stats") + (("m",) if self.halves_mean else ()),
+                          self._stats_step()))
         steps.append(Step("safeguard_blend", ("stats", "box") + (() if is_box else ("m",)),
                           ("out", "error"), self._blend_step()))
         bounds = tuple(self.full.plan.bounds) + shape_bounds(
@@ -260,7 +284,8 @@ class Safeguarded(Pipeline):
             has = self.mode != MODE_BOX
             m, ma, mb = (b["m"], b["ma"], b["mb"]) if has else (b["box"],) * 3
             ev = self.passes.run_stats(queue, b["color"], m, ma, mb, b["box"], b["stats"],
-                                       f.width, f.height, f.spp, int(has), wait_for)
+                                       f.width, f.height, f.spp,
+                                       2 if self.halves_mean else int(has), wait_for)
             return [("safeguard_stats", ev)]
         return run
 
@@ -283,6 +308,8 @@ class Safeguarded(Pipeline):
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True
+        if self.halves_mean:
+            d["safeguard_image"] = "the mean of the halves' images"
         d["plan"] = self.plan.name
         return d
 

@@ -237,7 +237,7 @@ def test_safeguarded_method_is_looked_into():
     sheared = "filter_sheared_recursive + filter_sheared_gauss"
     assert {"safeguard_split", "reproject", "reproject (halves)", sheared,
             "filter_sheared_recursive (halves) + filter_sheared_gauss (halves)",
-            "safeguard_stats", "safeguard_blend"} <= set(pb)
+            "safeguard_stats", "safeguard_rows + safeguard_blend"} <= set(pb)
     assert run["step_kernels"][sheared] == ["filter_sheared_recursive", "filter_sheared_gauss"]
     dev = get_device(0)
     paper = make_pipeline("layered", dev.context, synthetic_frame(w, h, SPP).inspect(),

@@ -55,7 +55,8 @@ def test_quick_study_numbers(tmp_path, device):
                                 rel_tol=1e-6)  # two runs: the sum of medians is the median
         assert fr["results"]["box"]["passes"][0]["name"] == "box"
     sweep = res["frames"]["64x64 2spp"]["results"]["sweep"]
-    assert {"safeguard_split", "safeguard_blend"} <= {p["name"] for p in sweep["passes"]}
+    assert {"safeguard_split", "safeguard_rows + safeguard_blend"} <= {
+        p["name"] for p in sweep["passes"]}
     for series, want in (("coc", [2, 6]), ("motion", [0, 12])):
         pts = res["series"][series]
         assert [p["x"] for p in pts] == want

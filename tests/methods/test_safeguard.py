@@ -8,7 +8,7 @@ import pytest
 from conftest import assert_close
 from layered_frames import frame
 
-from clrecon.api import make_pipeline, run
+from clrecon.api import METHODS, make_pipeline, run
 from clrecon.core.camera import CocModel
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import SampleBuffer
@@ -22,7 +22,8 @@ def _half(buf: SampleBuffer, sl: slice) -> SampleBuffer:
 
 def _expected(buf, method, device, mode):
     """The reference from the method's own images (safeguard off) on the frame and on the
-    two halves, each made by run() on a host-split buffer."""
+    two halves, each made by run() on a host-split buffer; a method that declares
+    ``halves_mean`` blends the halves' mean instead of its image of the frame."""
     if mode == sg.MODE_BOX:
         return sg.reference(buf.color, mode=mode)
     ha, _ = sg.halves(buf.spp)
@@ -30,6 +31,8 @@ def _expected(buf, method, device, mode):
     m = run(buf, method=method, device=device, **knobs).image
     ma = run(_half(buf, slice(0, ha)), method=method, device=device, **knobs).image
     mb = run(_half(buf, slice(ha, None)), method=method, device=device, **knobs).image
+    if mode == sg.MODE_BLEND and METHODS[method].halves_mean:
+        m = None
     return sg.reference(buf.color, m, ma, mb, mode=mode)
 
 
@@ -165,3 +168,18 @@ def test_extreme_colours(device, scale):
     atol = max(min(1e-6 * scale ** 2, fmax), 6e-45)
     assert_close(got.error[~sat], err[~sat], rtol=2e-3, atol=atol, what="error")
     assert (got.error[sat] == fmax).all()
+
+
+@pytest.mark.parametrize("method", ["sweep", "layered", "splat"])
+def test_halves_mean_skips_the_run_on_the_frame(device, method):
+    """sweep and splat (weights independent of the sample count) blend the mean of their
+    halves' images: their passes run on the halves only; layered also runs on the frame."""
+    buf = frame(np.random.default_rng(3), h=12, w=15, s=4)
+    got = run(buf, method=method, device=device)
+    own = [k for k in got.pass_ms if not k.startswith("safeguard")]
+    assert own and all(k.endswith("(halves)") for k in own) == METHODS[method].halves_mean
+    assert (got.method.get("safeguard_image") is not None) == METHODS[method].halves_mean
+    # the error alone keeps the method's image of the frame
+    alone = run(buf, method=method, device=device, safeguard=False, estimate_error=True)
+    assert any(not k.endswith("(halves)") and not k.startswith("safeguard")
+               for k in alone.pass_ms)

@@ -94,6 +94,8 @@ class SplatPipeline(MipPlan, Pipeline):
     #: not linear in the colour, so run(allow_negative=True) reconstructs the positive and
     #: negative parts of a frame apart and subtracts them
     color_linear = False
+    #: each sample's PSF comes from its own CoC and motion (not the sample count)
+    halves_mean = True
 
     def __init__(self, context, info, psf: str | None = None, layers: int = 4,
                  pyramid: str = "f7", dense: bool = False, fast_ratio: float = 1.0,

@@ -195,6 +195,8 @@ def check_knobs(context, info, scales, dof_layers, exponent, smooth_motion, diam
 @register
 class SweepPipeline(Pipeline):
     name = "sweep"
+    #: Shirley's weights come from each sample's blur alone (not the sample count)
+    halves_mean = True
 
     def __init__(self, context, info, scales: int = 2, dof_layers: bool = False,
                  exponent: float = 1.0, smooth_motion: bool | None = None,
