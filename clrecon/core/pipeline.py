@@ -156,10 +156,14 @@ class Pipeline:
 
     name: ClassVar[str] = ""
     fields: tuple[str, ...] = tuple(FIELDS)
-    #: the method's weights do not depend on the sample count, so the mean of its images of
-    #: a frame's two halves has its image's bias and variance: the safeguard blends that
-    #: mean and skips a run on the frame (:mod:`clrecon.methods.safeguard`)
+    #: the method's weights do not depend on the sample count (given the outputs of its
+    #: ``shared_steps``), so the mean of its images of a frame's two halves has its image's
+    #: bias and variance: the safeguard blends that mean and skips the rest of the method's
+    #: run on the frame (:mod:`clrecon.methods.safeguard`)
     halves_mean: ClassVar[bool] = False
+    #: steps the safeguard runs on the frame alone, whose outputs the halves' runs take
+    #: (layered's depth statistics and partitions: both halves then filter the same layers)
+    shared_steps: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, context: cl.Context, info: FrameInfo):
         self.context = context
@@ -201,12 +205,15 @@ class Pipeline:
         return self.plan.violations(info)
 
     def __call__(self, queue, samples: DeviceSamples, out, wait_for=None,
-                 temporaries: dict[str, cl.Buffer] | None = None) -> cl.Event:
+                 temporaries: dict[str, cl.Buffer] | None = None,
+                 steps: tuple[str, ...] | None = None) -> cl.Event:
         """Reconstruct ``samples`` into ``out`` (float32 (H, W, 3)); return the last event.
 
         A frame outside the plan's bounds raises ``ValueError`` naming the bound and both
         values; a pipeline made with ``grow=True`` re-plans instead (covering both frames).
         ``temporaries`` replaces the pipeline's own buffers by name (checked for size).
+        ``steps`` runs only the plan's steps of those names, in plan order: what a skipped
+        step would have written must already be in its buffers (``temporaries``).
         """
         if not isinstance(samples, DeviceSamples):
             raise TypeError(f"samples must be DeviceSamples, got {type(samples).__name__}")
@@ -232,11 +239,21 @@ class Pipeline:
         frame = _Frame(samples, info, bufs)
         self.events = []
         wait = wait_for
-        for step in self.plan.steps:
+        for step in self._steps(steps):
             evs = step.run(queue, frame, wait)
             self.events.extend(evs)
             wait = [ev for _, ev in evs]
         return self.events[-1][1]
+
+    def _steps(self, names: tuple[str, ...] | None) -> tuple:
+        if names is None:
+            return self.plan.steps
+        have = [s.name for s in self.plan.steps]
+        unknown = sorted(set(names) - set(have))
+        if unknown or not names:
+            raise ValueError(f"steps: the {self.name} plan has no {unknown or 'empty'} "
+                             f"selection; its steps are {have}")
+        return tuple(s for s in self.plan.steps if s.name in set(names))
 
     def _check_fields(self, samples: DeviceSamples) -> None:
         missing = [f for f in self.plan.fields if f not in samples.buffers]

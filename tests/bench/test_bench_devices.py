@@ -224,13 +224,16 @@ def test_bandwidth_rows(result):
 def test_safeguarded_method_is_looked_into():
     """A safeguarded method runs as two steps of sub-pipelines (the frame, both halves): the
     bench reports the method's own passes, each half-frame pass counting both halves, and a
-    two-kernel pass (layered's filter_sheared) as one row beside its kernels."""
+    two-kernel pass (layered's filter_sheared) as one row beside its kernels. (The error
+    estimate alone runs the method on the frame and on its halves; the default blend runs
+    only layered's statistics and partitions on the frame.)"""
     from clrecon.api import make_pipeline
     from clrecon.tune.runners import synthetic_frame
 
     w, h = SIZE
     npx = w * h
-    res = bench(devices=[0], variants=[("layered", "layered", {})], size=SIZE, spp=SPP,
+    knobs = {"safeguard": False, "estimate_error": True}
+    res = bench(devices=[0], variants=[("layered", "layered", knobs)], size=SIZE, spp=SPP,
                 repeats=REPEATS, peak=False)
     (run,) = res["runs"]
     pb = run["pass_bytes"]

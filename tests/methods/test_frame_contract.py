@@ -191,6 +191,29 @@ def test_caller_temporaries_are_size_checked_and_used(device, method, knobs):
         pipe(device.queue, s, out, temporaries={"nosuch": mine[name]})
 
 
+def test_a_selection_of_steps(device):
+    """steps= runs a plan's steps of those names in plan order: the later steps of layered
+    on the outputs of its first ones give the whole run's image; a name the plan lacks, or
+    an empty selection, is refused naming the plan's steps."""
+    buf = _frame("fence", device=device)
+    info = buf.inspect()
+    pipe = make_pipeline("layered", device.context, info, safeguard=False)
+    s = DeviceSamples.upload(device.queue, buf, info=info)
+    out = _out(device, buf)
+    whole = _read(device, out, buf, pipe(device.queue, s, out))
+    names = [st.name for st in pipe.plan.steps]
+    cl.enqueue_fill_buffer(device.queue, out, np.float32(0), 0, out.size).wait()
+    pipe(device.queue, s, out, steps=tuple(names[:2]))
+    assert [n for n, _ in pipe.events] == names[:2]
+    got = _read(device, out, buf, pipe(device.queue, s, out, steps=tuple(names[2:])))
+    assert "tile_stats" not in {n for n, _ in pipe.events}
+    assert_close(got, whole, rtol=0, atol=0, what="the steps in two selections")
+    with pytest.raises(ValueError, match="has no \\['nosuch'\\]"):
+        pipe(device.queue, s, out, steps=("nosuch",))
+    with pytest.raises(ValueError, match="its steps are"):
+        pipe(device.queue, s, out, steps=())
+
+
 # -- the device samples --------------------------------------------------------------------
 def test_device_samples_need_coc_and_big_enough_buffers(device):
     buf = _frame("fence", device=device)

@@ -2,6 +2,8 @@
 the device against the NumPy reference, the estimator's statistics, the knobs' contract."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pyopencl as cl
 import pytest
@@ -29,11 +31,38 @@ def _expected(buf, method, device, mode):
     ha, _ = sg.halves(buf.spp)
     knobs = {} if method == "box" else {"safeguard": False}
     m = run(buf, method=method, device=device, **knobs).image
-    ma = run(_half(buf, slice(0, ha)), method=method, device=device, **knobs).image
-    mb = run(_half(buf, slice(ha, None)), method=method, device=device, **knobs).image
+    halves = [_half(buf, slice(0, ha)), _half(buf, slice(ha, None))]
+    if mode == sg.MODE_BLEND and METHODS[method].shared_steps:
+        ma, mb = _shared_halves(buf, halves, method, device)
+    else:
+        ma, mb = (run(h, method=method, device=device, **knobs).image for h in halves)
     if mode == sg.MODE_BLEND and METHODS[method].halves_mean:
         m = None
     return sg.reference(buf.color, m, ma, mb, mode=mode)
+
+
+def _shared_halves(buf, halves, method, device):
+    """The halves' images made with the frame's outputs of the method's shared steps
+    (layered: the frame's statistics and partitions), through the executor's ``steps``."""
+    from clrecon.core.device import get_device
+
+    dev = get_device(device)
+    ctx, q = dev.context, dev.queue
+    full = make_pipeline(method, ctx, buf.inspect(), safeguard=False)
+    out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
+    shared = METHODS[method].shared_steps
+    full(q, DeviceSamples.upload(q, buf), out, steps=shared)
+    outs = {o for st in full.plan.steps if st.name in shared for o in st.outputs}
+    images = []
+    for h in halves:
+        pipe = make_pipeline(method, ctx, replace(buf.inspect(), spp=h.spp), safeguard=False)
+        rest = tuple(st.name for st in pipe.plan.steps if st.name not in shared)
+        pipe(q, DeviceSamples.upload(q, h), out, steps=rest,
+             temporaries={k: full.buffers[k] for k in outs})
+        img = np.empty((buf.height, buf.width, 3), np.float32)
+        cl.enqueue_copy(q, img, out)
+        images.append(img)
+    return images
 
 
 @pytest.mark.parametrize("method", ["sweep", "layered", "splat"])
@@ -86,9 +115,13 @@ def test_weight_goes_to_box_where_box_is_exact(device):
 
 
 def test_blend_lies_between_box_and_method(device):
+    """Between box and the method's image it blends: layered's halves' mean."""
     buf = frame(np.random.default_rng(8), h=15, w=15, s=6)
     blend = run(buf, method="layered", device=device).image.astype(np.float64)
-    paper = run(buf, method="layered", device=device, safeguard=False).image
+    ha, hb = sg.halves(buf.spp)
+    ma, mb = _shared_halves(buf, [_half(buf, slice(0, ha)), _half(buf, slice(ha, None))],
+                            "layered", device)
+    paper = (ha * ma.astype(np.float64) + hb * mb) / buf.spp
     box = buf.color.mean(2, dtype=np.float64)
     lo, hi = np.minimum(paper, box), np.maximum(paper, box)
     tol = 1e-5 * float(np.abs(box).max())
@@ -172,12 +205,16 @@ def test_extreme_colours(device, scale):
 
 @pytest.mark.parametrize("method", ["sweep", "layered", "splat"])
 def test_halves_mean_skips_the_run_on_the_frame(device, method):
-    """sweep and splat (weights independent of the sample count) blend the mean of their
-    halves' images: their passes run on the halves only; layered also runs on the frame."""
+    """Every method blends the mean of its halves' images (weights independent of the
+    sample count): its passes run on the halves only, but for layered's statistics and
+    partitions, which run once on the frame for both halves."""
     buf = frame(np.random.default_rng(3), h=12, w=15, s=4)
     got = run(buf, method=method, device=device)
-    own = [k for k in got.pass_ms if not k.startswith("safeguard")]
+    shared = set(METHODS[method].shared_steps)
+    own = [k for k in got.pass_ms if not k.startswith("safeguard") and k not in shared]
     assert own and all(k.endswith("(halves)") for k in own) == METHODS[method].halves_mean
+    assert shared <= set(got.pass_ms)
+    assert not {f"{k} (halves)" for k in shared} & set(got.pass_ms)
     assert (got.method.get("safeguard_image") is not None) == METHODS[method].halves_mean
     # the error alone keeps the method's image of the frame
     alone = run(buf, method=method, device=device, safeguard=False, estimate_error=True)

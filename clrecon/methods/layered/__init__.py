@@ -143,6 +143,11 @@ def _guard(info, sigma_x: float, guard: int) -> int:
 class LayeredPipeline(Pipeline):
     name = "layered"
     fields = ("color", "position", "depth", "lens", "time", "motion")
+    #: given the partitions, the filters come from the partitions' statistics, not the sample
+    #: count: the safeguard's halves take the frame's (its statistics and partition setup)
+    #: and it blends their mean (a halves' own partitions lost 0.39 dB on bokeh at 8 spp)
+    halves_mean = True
+    shared_steps = ("tile_stats", "partition_setup")
 
     def __init__(self, context, info, mode: str = "practical", filter: str | None = None,
                  tile: int = 32, stats_stride: int | None = None,
