@@ -117,7 +117,7 @@ class _Session:
     """What :func:`run` keeps between frames of one method on one device."""
 
     pipe: Pipeline
-    samples: DeviceSamples
+    samples: DeviceSamples | None  # None: the last frame was read in place
     out: cl.Buffer
 
 
@@ -146,7 +146,9 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
         **knobs) -> Reconstruction:
     """Upload, validate and inspect on the device, plan, reconstruct and read back.
 
-    Frame after frame of one method and device, the device buffers are reused and the plan
+    On a CPU device the passes read ``buf``'s arrays in place (``DeviceSamples.wrap``: no
+    copy; ``upload_ms`` is then ~0); elsewhere they are copied. Frame after frame of one
+    method and device, the device buffers are reused and the plan
     too while the frame's description is unchanged; any other frame is planned afresh
     (kernels come from the build cache), so the image is always that of a plan made for this
     frame. Invalid samples raise the ``ValueError`` of
@@ -176,8 +178,15 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
            override_key())
     with _sessions_lock:  # batch runs one thread per device
         sess = _sessions.pop(key, None)
-    samples = DeviceSamples.upload(dev.queue, buf, FIELDS,
-                                   into=None if sess is None else sess.samples)
+    # a CPU device reads the host arrays in place (no copy, no second copy of the frame in
+    # memory); a frame whose colours run() rewrites (negative parts) is copied
+    negative = allow_negative and bool(buf.color.min() < 0)
+    in_place = dev.info.device_type == "CPU" and not negative
+    if in_place:
+        samples = DeviceSamples.wrap(dev.context, buf, FIELDS)
+    else:
+        samples = DeviceSamples.upload(dev.queue, buf, FIELDS,
+                                       into=None if sess is None else sess.samples)
     t1 = time.perf_counter()
     info = samples.inspect(dev.queue, allow_negative=allow_negative)
     t2 = time.perf_counter()
@@ -189,8 +198,7 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     nbytes = buf.height * buf.width * 12
     out = sess.out if sess is not None and sess.out.size == nbytes else cl.Buffer(
         dev.context, cl.mem_flags.READ_WRITE, size=nbytes)
-    split = (allow_negative and not getattr(pipe, "color_linear", True)
-             and bool(buf.color.min() < 0))
+    split = negative and not getattr(pipe, "color_linear", True)
     if split:  # the positive part first, then the negative one into the same buffer
         cl.enqueue_copy(dev.queue, samples["color"], np.maximum(buf.color, 0),
                         is_blocking=True)
@@ -211,8 +219,8 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
         for name, ms in pipe.pass_times_ms().items():
             pass_ms[name] = pass_ms.get(name, 0.0) + ms
     t3 = time.perf_counter()
-    with _sessions_lock:
-        _sessions[key] = _Session(pipe, samples, out)
+    with _sessions_lock:  # buffers over the caller's arrays are not kept
+        _sessions[key] = _Session(pipe, None if in_place else samples, out)
         while len(_sessions) > _MAX_SESSIONS:
             _sessions.pop(next(iter(_sessions)))
     return Reconstruction(

@@ -100,6 +100,21 @@ class DeviceSamples:
         return cls(buf.height, buf.width, buf.spp, bufs,
                    (buf.coc_model.c0, buf.coc_model.c1), info)
 
+    @classmethod
+    def wrap(cls, context: cl.Context, buf: SampleBuffer, fields=None,
+             info: FrameInfo | None = None) -> DeviceSamples:
+        """Device buffers over the host arrays themselves (``USE_HOST_PTR``, read-only): no
+        copy on a device that shares the host's memory (a CPU). The buffers alias ``buf``'s
+        arrays: they are valid while the arrays live, and what the arrays hold when a pass
+        runs is what it reads; the passes never write them."""
+        fields = tuple(fields or FIELDS)
+        buf.check_layout(fields)
+        flags = cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR
+        bufs = {name: cl.Buffer(context, flags, hostbuf=getattr(buf, name))
+                for name in fields}
+        return cls(buf.height, buf.width, buf.spp, bufs,
+                   (buf.coc_model.c0, buf.coc_model.c1), info)
+
     @property
     def shape(self) -> tuple[int, int, int]:
         return (self.height, self.width, self.spp)

@@ -21,10 +21,12 @@ import pytest
 from conftest import assert_close
 
 import clrecon
+from clrecon import api
 from clrecon.api import make_pipeline
 from clrecon.core.errors import DeviceMemoryError
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.plan import BOX_PLAN, covering
+from clrecon.core.samples import SampleBuffer
 from clrecon.scenes import get_scene, render_samples
 
 METHODS = [("box", {}), ("sweep", {}), ("sweep", {"dof_layers": True}),
@@ -212,6 +214,29 @@ def test_a_selection_of_steps(device):
         pipe(device.queue, s, out, steps=("nosuch",))
     with pytest.raises(ValueError, match="its steps are"):
         pipe(device.queue, s, out, steps=())
+
+
+def test_run_reads_the_callers_arrays_and_leaves_them_as_they_were(device):
+    """On a CPU device run() reads the frame's arrays in place and keeps no reference to them
+    after the call; every device leaves them unchanged, the negative-colour path (splat runs
+    the positive and negative parts apart) included; a frame changed in place between calls
+    is read as it is then."""
+    buf = _frame("fence", device=device)
+    before = {k: v.copy() for k, v in buf.arrays().items()}
+    first = clrecon.run(buf, "box", device)
+    for k, v in buf.arrays().items():
+        assert np.array_equal(v, before[k]), k
+    if device.info.device_type == "CPU":  # read in place: nothing of the frame is kept
+        assert list(api._sessions.values())[-1].samples is None
+    buf.color *= 2.0
+    second = clrecon.run(buf, "box", device)
+    assert_close(second.image, 2.0 * first.image, rtol=1e-6, atol=0, what="the changed frame")
+    neg = SampleBuffer(**{k: v.copy() for k, v in buf.arrays().items()},
+                       coc_model=buf.coc_model)
+    neg.color[::2] *= -1.0
+    kept = neg.color.copy()
+    clrecon.run(neg, "splat", device, allow_negative=True, safeguard=False)
+    assert np.array_equal(neg.color, kept)
 
 
 # -- the device samples --------------------------------------------------------------------
