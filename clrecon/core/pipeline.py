@@ -204,6 +204,13 @@ class Pipeline:
         """The pipeline's own temporaries (allocated on first use)."""
         return {name: self._own_buffer(name) for name in self.plan.temporaries}
 
+    def buffer(self, name: str) -> cl.Buffer:
+        """One of the pipeline's own temporaries (allocated on first use)."""
+        if name not in self.plan.temporaries:
+            raise KeyError(f"the {self.name} plan has no temporary {name!r}; it has "
+                           f"{sorted(self.plan.temporaries)}")
+        return self._own_buffer(name)
+
     def _own_buffer(self, name: str) -> cl.Buffer:
         if name not in self._own:
             self._own[name] = cl.Buffer(self.context, cl.mem_flags.READ_WRITE,
@@ -248,13 +255,16 @@ class Pipeline:
                                  "grow=True to re-plan.")
             self.regrow(covering(self.info, info))
             self._check_fields(samples)  # the new plan may read more (motion, say)
+        run = self._steps(steps)
         bufs = dict(samples.buffers)
         bufs["out"] = out
-        bufs.update(self._bind(temporaries or {}))
+        # a selection of steps allocates only the temporaries those steps name
+        used = None if steps is None else {n for st in run for n in st.inputs + st.outputs}
+        bufs.update(self._bind(temporaries or {}, used))
         frame = _Frame(samples, info, bufs)
         self.events = []
         wait = wait_for
-        for step in self._steps(steps):
+        for step in run:
             evs = step.run(queue, frame, wait)
             self.events.extend(evs)
             wait = [ev for _, ev in evs]
@@ -288,7 +298,8 @@ class Pipeline:
                              f"{sorted(samples.buffers)}), or samples.info")
         return samples.inspect(queue, wait_for=wait_for)
 
-    def _bind(self, given: dict[str, cl.Buffer]) -> dict[str, cl.Buffer]:
+    def _bind(self, given: dict[str, cl.Buffer], used: set[str] | None = None
+              ) -> dict[str, cl.Buffer]:
         temps = self.plan.temporaries
         unknown = sorted(set(given) - set(temps))
         if unknown:
@@ -298,7 +309,8 @@ class Pipeline:
             if not isinstance(b, cl.MemoryObjectHolder) or b.size < temps[name]:
                 raise ValueError(f"temporaries: {name!r} needs {temps[name]} bytes, got "
                                  f"{getattr(b, 'size', type(b).__name__)}")
-        return {name: self._own_buffer(name) for name in temps if name not in given} | given
+        return {name: self._own_buffer(name) for name in temps
+                if name not in given and (used is None or name in used)} | given
 
     def regrow(self, info: FrameInfo) -> None:
         """Re-plan for ``info`` with the same knobs (kernels come from the build cache);

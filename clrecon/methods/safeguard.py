@@ -286,7 +286,7 @@ class Safeguarded(Pipeline):
                 if self.shared:  # the frame's outputs of the shared steps, the rest here
                     rest = tuple(st.name for st in pipe.plan.steps if st.name not in self.shared)
                     pipe(queue, ds, f.buffers[out], wait_for=wait_for, steps=rest,
-                         temporaries={k: self.full.buffers[k] for k in self.shared_out
+                         temporaries={k: self.full.buffer(k) for k in self.shared_out
                                       if k in pipe.plan.temporaries})
                 else:
                     pipe(queue, ds, f.buffers[out], wait_for=wait_for)
