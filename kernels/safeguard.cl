@@ -6,7 +6,8 @@
  *                    each pixel): two independent estimates of everything
  *   safeguard_stats  per pixel: the box image and, in linear radiance, mean over RGB,
  *                    d2 = |m - box|^2, vb = k |boxA - boxB|^2, vm = k |mA - mB|^2 with
- *                    k = ha hb / S^2 (the variance of the full-frame estimate from its halves)
+ *                    k = ha hb / S^2 (the variance of the full-frame estimate from its halves);
+ *                    with has_method = 2 it first writes m as the halves' mean
  *   safeguard_rows   the windowed sums' row segments (3 and 7 wide), for the blend
  *   safeguard_blend  windowed means (3x3 and 7x7, over the pixels inside the image), the bias
  *                    estimate b2 = max(0, mean7(e), mean3(e) - 2 se3(e)), e = d2 - vm - vb
@@ -16,9 +17,10 @@
  *                    (box's own: mean3(vb), unbiased)
  * Arguments: split: src (P, S, C) into dst_a (P, ha, C) and dst_b (P, S - ha, C), C = `width`
  * floats a sample; stats: color (H, W, S, 3), m, ma, mb (H, W, 3) the method's images of the
- * frame and of its halves, box (H, W, 3), stats float4 (H, W); rows: rows3, rows7 float4
- * (H, W); blend: out (H, W, 3), error (H, W). Preconditions: 1 <= ha < S (both halves hold
- * samples). No compile-time options; the local sizes are launch parameters only.
+ * frame (or written: the halves' mean) and of its halves, box (H, W, 3), stats float4
+ * (H, W); rows: rows3, rows7 float4 (H, W); blend: out (H, W, 3), error (H, W).
+ * Preconditions: 1 <= ha < S (both halves hold samples). No compile-time options; the local
+ * sizes are launch parameters only.
  */
 #include "common.h"
 
