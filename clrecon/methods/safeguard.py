@@ -209,8 +209,7 @@ class Safeguarded(Pipeline):
         # the blend's method image from its halves, (ha mA + hb mB) / S, instead of a third
         # run on the frame: the same bias and variance, a third less work. The error alone
         # (MODE_METHOD) keeps the method's own image.
-        self.halves_mean = self.mode == MODE_BLEND and bool(
-            getattr(self.full, "halves_mean", False))
+        self.halves_mean = self.mode == MODE_BLEND and self.full.halves_mean
         ha, hb = halves(info.spp)
         self.half_a = self.half_b = None
         if not is_box:
@@ -219,7 +218,7 @@ class Safeguarded(Pipeline):
                 method, context, replace(info, spp=hb), **knobs)
         # the steps the frame runs for the halves (their outputs are the halves' inputs)
         have = {st.name: st for st in self.full.plan.steps}
-        self.shared = tuple(n for n in getattr(self.full, "shared_steps", ()) if n in have) \
+        self.shared = tuple(n for n in self.full.shared_steps if n in have) \
             if self.halves_mean else ()
         self.shared_out = tuple(o for n in self.shared for o in have[n].outputs)
         npx = info.width * info.height
