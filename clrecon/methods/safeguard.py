@@ -51,8 +51,9 @@ is saved. layered's filters follow its partitions, which follow the samples' dep
 statistics: its ``shared_steps`` (statistics and partition setup) run once on the frame, and
 both halves filter those partitions (with their own, the halves' mean lost 0.39 dB on
 ``bokeh`` at 8 spp). Against the blend with the frame's own image, over the six blurred
-built-in scenes at 512x512 and 4, 8 and 16 spp, the halves' mean measured -0.07 to +0.01 dB
-for sweep, -0.10 to +0.43 dB for splat and -0.04 to +0.01 dB for layered.
+built-in scenes at 4-16 spp (512x512) and 32-64 spp (256x256), the halves' mean measured
+-0.07 to +0.01 dB for sweep, -0.10 to +0.43 dB for splat and -0.13 to +0.01 dB for layered
+(the -0.13: bokeh at 64 spp).
 
 Cost: the method runs on both halves (layered's statistics and partitions on the frame),
 plus one split copy of the fields and three cheap passes (the statistics, and the windowed
