@@ -10,7 +10,8 @@ per-pixel squared-error estimate (``estimate_error=True``). This measures, per s
   inverse-variance blend, exact for independent unbiased errors (these are neither: every
   default reads the same samples, so this is a heuristic, measured);
 * ``oracle 8x8`` / ``oracle px``: the best default per 8x8 tile / per pixel by the *true*
-  error, an upper bound of any selector among these images (not a setting).
+  error (tone-mapped, PSNR's own), an upper bound of any selector of tiles / pixels among
+  these images (not a setting).
 
 The blends use no constant but the window radius, and none is fitted to the scenes. A hybrid
 costs the sum of its members' times (each member also runs its halves), so it is only worth
@@ -31,6 +32,7 @@ import clrecon
 from clrecon.bench.scripts import emit_page
 from clrecon.bench.options import parse_size
 from clrecon.core.device import get_device
+from clrecon.io.image import tonemap_srgb
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_reference, render_samples
@@ -55,6 +57,7 @@ def pick(images: np.ndarray, index: np.ndarray) -> np.ndarray:
 
 
 def measure(name: str, w: int, h: int, spp: int, oidn: bool, dev) -> dict[str, float]:
+    """Every column of the page for one scene (PSNR in dB)."""
     scene = get_scene(name)
     ref = render_reference(scene, w, h)  # the trusted device's, never the one under test
     buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev)
@@ -73,7 +76,9 @@ def measure(name: str, w: int, h: int, spp: int, oidn: bool, dev) -> dict[str, f
         wt = 1.0 / np.maximum(est, np.finfo(np.float32).tiny)
         wt /= wt.sum(0)
         out[f"inv {r}"] = psnr((wt[..., None] * images).sum(0).astype(np.float32), ref)
-    true = ((images - ref[None]) ** 2).mean(-1)
+    # the oracles select by PSNR's own error (tone-mapped), so they bound every selector
+    tm = np.asarray(tonemap_srgb(images.astype(np.float32)), np.float64)
+    true = ((tm - np.asarray(tonemap_srgb(ref), np.float64)[None]) ** 2).mean(-1)
     tiles = true[:, :h // 8 * 8, :w // 8 * 8].reshape(len(METHODS), h // 8, 8, w // 8, 8)
     best = np.kron(np.argmin(tiles.mean((2, 4)), 0), np.ones((8, 8), int))
     sel = np.argmin(true, 0)
@@ -83,14 +88,14 @@ def measure(name: str, w: int, h: int, spp: int, oidn: bool, dev) -> dict[str, f
     return out
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", default="fence,spheres,bokeh,deep,huge_coc,fast_motion")
     ap.add_argument("--size", default="512x512")
     ap.add_argument("--spp", type=int, default=8)
     ap.add_argument("--no-oidn", action="store_true")
     ap.add_argument("--out", default=None)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     w, h = parse_size(args.size)
     dev = get_device(None)
     rows = []
