@@ -66,8 +66,30 @@ def test_default_buffer_is_beyond_the_cache_and_fits(device):
     n = bw.default_buffer_bytes(dev)
     assert n % 16 == 0 and n <= dev.max_mem_alloc_size and n <= dev.global_mem_size // 4
     cache = dev.get_info(cl.device_info.GLOBAL_MEM_CACHE_SIZE)
-    if dev.max_mem_alloc_size >= bw.MIN_BUFFER_BYTES * 4:
-        assert n >= max(bw.MIN_BUFFER_BYTES, 8 * cache)
+    cap = min(dev.max_mem_alloc_size, dev.global_mem_size // 4) // 16 * 16
+    assert n == min(max(bw.MIN_BUFFER_BYTES, 8 * cache), cap) // 16 * 16
+
+
+class _FakeDevice:
+    """What default_buffer_bytes reads of a device: its cache and memory sizes."""
+
+    def __init__(self, cache, alloc, total):
+        self.cache, self.max_mem_alloc_size, self.global_mem_size = cache, alloc, total
+
+    def get_info(self, what):
+        assert what == cl.device_info.GLOBAL_MEM_CACHE_SIZE
+        return self.cache
+
+
+@pytest.mark.parametrize("cache, alloc, total, want", [
+    (2**20, 2**32, 2**34, bw.MIN_BUFFER_BYTES),      # a small cache: the floor
+    (64 * 2**20, 2**32, 2**34, 512 * 2**20),        # 8x the cache fits
+    (260 * 2**20, 2**32, 4500 * 2**20, 1125 * 2**20),  # a 260 MiB L3: a quarter of memory
+    (0, 2**30 + 8, 2**34, bw.MIN_BUFFER_BYTES),     # no cache reported
+    (2**30, 2**28 + 8, 2**34, 2**28),               # the allocation limit, in whole float4s
+])
+def test_default_buffer_sizes(cache, alloc, total, want):
+    assert bw.default_buffer_bytes(_FakeDevice(cache, alloc, total)) == want
 
 
 # -- clpeak --------------------------------------------------------------------------------
