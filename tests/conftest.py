@@ -1,5 +1,6 @@
-"""Shared fixtures: every device test runs on every OpenCL device present (pyopencl style),
-or on those ``--device SPEC`` matches; references come from a trusted device."""
+"""Shared fixtures: every device test runs on every OpenCL device present (pyopencl style)
+but the simulators, or on those ``--device SPEC`` matches; references come from a trusted
+device."""
 from __future__ import annotations
 
 import math
@@ -12,8 +13,20 @@ from clrecon.core import device as cldev
 from clrecon.core.errors import DeviceError
 
 _DEVICES = cldev.list_devices()
-#: the devices the ``device`` fixture runs on: every one, or those ``--device`` matches
-_SELECTED = list(_DEVICES)
+#: platforms the default run leaves out, matched in 'platform / device': simulators, whose
+#: kernels run orders of magnitude slower than on hardware (on Oclgrind the suite takes
+#: hours and a worker can pass 20 GB); ``--device`` names them, ``--device all`` adds them
+SIMULATORS = ("oclgrind",)
+
+
+def default_devices(devices: list[cldev.DeviceInfo]) -> list[cldev.DeviceInfo]:
+    """The devices of ``devices`` the run takes without ``--device``: all but the simulators."""
+    return [d for d in devices if not any(s in d.label.lower() for s in SIMULATORS)]
+
+
+#: the devices the ``device`` fixture runs on: every one but the simulators, or those
+#: ``--device`` matches
+_SELECTED = default_devices(_DEVICES)
 _ENV_BEFORE: list[str | None] = []
 
 
@@ -21,9 +34,9 @@ def pytest_addoption(parser):
     parser.addoption(
         "--device", default=None, metavar="SPEC",
         help="run the device tests only on the OpenCL devices SPEC matches: an index of "
-        "`clrecon devices` or a case-insensitive substring of 'platform / device' (default: "
-        "every device); also sets CLRECON_DEVICE=SPEC for the session, for tests that let "
-        "get_device() choose")
+        "`clrecon devices`, a case-insensitive substring of 'platform / device', or 'all' "
+        "(default: every device but the simulators, Oclgrind); also sets CLRECON_DEVICE "
+        "for the session, for tests that let get_device() choose")
 
 
 def select_devices(spec: str, devices: list[cldev.DeviceInfo]) -> list[cldev.DeviceInfo]:
@@ -36,19 +49,41 @@ def select_devices(spec: str, devices: list[cldev.DeviceInfo]) -> list[cldev.Dev
     return [d for d in devices if spec and spec.lower() in d.label.lower()]
 
 
+def _set_env_device(value: str) -> None:
+    _ENV_BEFORE.append(os.environ.get(cldev.ENV_DEVICE))
+    os.environ[cldev.ENV_DEVICE] = value
+
+
 def pytest_configure(config):
     spec = config.getoption("--device")
     if spec is None:
+        left_out = [d for d in _DEVICES if d not in _SELECTED]
+        if left_out and not _SELECTED:
+            raise pytest.UsageError(
+                "the only OpenCL devices are simulators, which the default run leaves out "
+                f"({', '.join(d.label for d in left_out)}): pass --device to run on them")
+        if left_out and os.environ.get(cldev.ENV_DEVICE) is None:
+            # get_device() would take the simulated GPU before any CPU device
+            _set_env_device(str(_SELECTED[0].index))
         return
-    chosen = select_devices(spec, _DEVICES)
+    chosen = (list(_DEVICES) if spec.strip().lower() == "all"
+              else select_devices(spec, _DEVICES))
     if not chosen:
         labels = ", ".join(f"[{d.index}] {d.label}" for d in _DEVICES) or "none"
         raise pytest.UsageError(
-            f"--device {spec!r} matches no OpenCL device (give an index or a substring of "
-            f"'platform / device'); devices: {labels}")
+            f"--device {spec!r} matches no OpenCL device (give an index, a substring of "
+            f"'platform / device' or 'all'); devices: {labels}")
     _SELECTED[:] = chosen
-    _ENV_BEFORE.append(os.environ.get(cldev.ENV_DEVICE))
-    os.environ[cldev.ENV_DEVICE] = spec.strip()
+    _set_env_device(str(chosen[0].index) if spec.strip().lower() == "all" else spec.strip())
+
+
+def pytest_report_header(config):
+    lines = [f"devices under test: {', '.join(f'[{d.index}] {d.label}' for d in _SELECTED)}"]
+    left_out = [d for d in _DEVICES if d not in _SELECTED]
+    if left_out:
+        lines.append(f"devices left out: {', '.join(f'[{d.index}] {d.label}' for d in left_out)}"
+                     " (--device SPEC or --device all to include them)")
+    return lines
 
 
 def pytest_unconfigure(config):
@@ -69,8 +104,8 @@ def pytest_generate_tests(metafunc):
 
 @pytest.fixture(scope="session")
 def device(request) -> cldev.Device:
-    """A :class:`clrecon.core.device.Device` for each OpenCL device on the machine (or each that
-    ``--device`` matches)."""
+    """A :class:`clrecon.core.device.Device` for each OpenCL device on the machine but the
+    simulators (or each that ``--device`` matches)."""
     return cldev.get_device(request.param)
 
 

@@ -33,6 +33,7 @@ def test_select_devices_by_index_or_name_substring():
     assert [d.index for d in pick("amd epyc", devs)] == [1, 2]
     assert [d.index for d in pick("Portable Computing Language / pthread", devs)] == [2]
     assert pick("7", devs) == [] and pick("cuda", devs) == [] and pick(" ", devs) == []
+    assert [d.index for d in conftest.default_devices(devs)] == [1, 2]  # no simulator
 
 
 def test_device_option_reaches_get_device(pytestconfig):
@@ -40,6 +41,11 @@ def test_device_option_reaches_get_device(pytestconfig):
     that let get_device() choose get the first matching device through CLRECON_DEVICE."""
     spec = pytestconfig.getoption("--device")
     if spec is None:
+        assert conftest._SELECTED == conftest.default_devices(conftest._DEVICES)
+        if conftest._SELECTED != conftest._DEVICES and conftest._ENV_BEFORE == [None]:
+            assert cldev.get_device().info.index == conftest._SELECTED[0].index
+        return
+    if spec.strip().lower() == "all":
         assert conftest._SELECTED == conftest._DEVICES
         return
     assert os.environ[cldev.ENV_DEVICE] == spec.strip()
@@ -75,6 +81,39 @@ def test_device_option_runs_only_the_matching_devices():
            if "test_samples_are_stratified[" in line}
     want = {str(d.index) for d in conftest.select_devices(word, cldev.list_devices())}
     assert ids == want and str(dev.index) in ids
+
+
+def test_default_run_leaves_the_simulator_out(tmp_path):
+    """With Oclgrind registered beside PoCL, the run without --device collects PoCL's device
+    only, names Oclgrind as left out, and lets get_device() choose PoCL; --device all takes
+    both."""
+    lib = Path("/usr/lib/oclgrind/liboclgrind-rt-icd.so")
+    if not lib.exists():
+        pytest.skip("Oclgrind (Debian's oclgrind) is not installed")
+    (tmp_path / "pocl.icd").write_text(_pocl_icd_text() + "\n")
+    (tmp_path / "oclgrind.icd").write_text(f"{lib}\n")
+    env = {**os.environ, "OCL_ICD_VENDORS": str(tmp_path)}
+    env.pop(cldev.ENV_DEVICE, None)
+    test = "tests/unit/test_scenes.py::test_samples_are_stratified"
+
+    def collect(*args):
+        res = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
+                              "--collect-only", test, *args], cwd=ROOT, env=env,
+                             capture_output=True, text=True, timeout=600)
+        assert res.returncode == 0, res.stdout + res.stderr
+        return res.stdout
+
+    out = collect("-q")
+    ids = [line for line in out.splitlines() if line.startswith(test)]
+    assert len(ids) == 1 and "Oclgrind" not in ids[0], out
+    header = [line for line in collect().splitlines() if line.startswith("devices ")]
+    assert len(header) == 2 and "Oclgrind" not in header[0] and "Oclgrind" in header[1], header
+    assert len([line for line in collect("-q", "--device", "all").splitlines()
+                if line.startswith(test)]) == 2
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                          "tests/unit/test_platforms.py::test_device_option_reaches_get_device"],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0 and "1 passed" in res.stdout, res.stdout + res.stderr
 
 
 def test_device_option_matching_nothing_is_a_usage_error():
