@@ -13,15 +13,13 @@ from clrecon.core import device as cldev
 from clrecon.core.errors import DeviceError
 
 _DEVICES = cldev.list_devices()
-#: platforms the default run leaves out, matched in 'platform / device': simulators, whose
-#: kernels run orders of magnitude slower than on hardware (on Oclgrind the suite takes
-#: hours and a worker can pass 20 GB); ``--device`` names them, ``--device all`` adds them
-SIMULATORS = ("oclgrind",)
 
 
 def default_devices(devices: list[cldev.DeviceInfo]) -> list[cldev.DeviceInfo]:
-    """The devices of ``devices`` the run takes without ``--device``: all but the simulators."""
-    return [d for d in devices if not any(s in d.label.lower() for s in SIMULATORS)]
+    """The devices of ``devices`` the run takes without ``--device``: all but the simulators
+    (``cldev.SIMULATOR_PLATFORMS``: on Oclgrind the suite takes hours and a worker can pass
+    20 GB); ``--device`` names them, ``--device all`` adds them."""
+    return [d for d in devices if not cldev.is_simulator(d.platform)]
 
 
 #: the devices the ``device`` fixture runs on: every one but the simulators, or those
@@ -62,9 +60,6 @@ def pytest_configure(config):
             raise pytest.UsageError(
                 "the only OpenCL devices are simulators, which the default run leaves out "
                 f"({', '.join(d.label for d in left_out)}): pass --device to run on them")
-        if left_out and os.environ.get(cldev.ENV_DEVICE) is None:
-            # get_device() would take the simulated GPU before any CPU device
-            _set_env_device(str(_SELECTED[0].index))
         return
     chosen = (list(_DEVICES) if spec.strip().lower() == "all"
               else select_devices(spec, _DEVICES))

@@ -56,7 +56,8 @@ def device_arg(sp) -> None:
     """``--device`` of the commands that run on one device."""
     sp.add_argument("--device", default=None,
                     help="OpenCL device index or name substring (default: "
-                    "$CLRECON_DEVICE, else the first GPU, else the first device)")
+                    "$CLRECON_DEVICE, else the first GPU, else the first device; a simulator "
+                    "(Oclgrind) only by name or index)")
 
 
 class IntsAction(argparse.Action):

@@ -5,7 +5,8 @@ The library never prints; everything here either returns data or raises
 
 Choosing a device: ``get_device(spec)`` with ``spec`` an index into :func:`list_devices`, a
 case-insensitive substring of ``"platform / device"``, or ``None`` (then the environment
-variable ``CLRECON_DEVICE``, then the first GPU, then the first device). Converged
+variable ``CLRECON_DEVICE``, then the first GPU, then the first device, simulators such as
+Oclgrind last: they are chosen by name or index only). Converged
 references come from :func:`trusted_device` (PoCL), never from that choice.
 
 Programs are built and cached by :mod:`clrecon.core.build` (binaries on disk:
@@ -162,6 +163,25 @@ def _check_spec(spec, name: str = "device"):
     return int(spec)
 
 
+#: platforms that simulate a device (Oclgrind checks every memory access): kernels run orders
+#: of magnitude slower than on hardware, so neither ``get_device(None)`` nor the default test
+#: run takes one while a real device is present
+SIMULATOR_PLATFORMS = ("Oclgrind",)
+
+
+def is_simulator(platform: str) -> bool:
+    """Whether the platform named ``platform`` is a simulator (:data:`SIMULATOR_PLATFORMS`)."""
+    return any(s.lower() in platform.strip().lower() for s in SIMULATOR_PLATFORMS)
+
+
+def _default_index(devices: list[cl.Device]) -> int:
+    """The first GPU, else the first device; simulators only where nothing else is."""
+    real = [i for i, d in enumerate(devices) if not is_simulator(d.platform.name)]
+    pool = real or list(range(len(devices)))
+    gpus = [i for i in pool if devices[i].type & cl.device_type.GPU]
+    return (gpus or pool)[0]
+
+
 def _pick(spec: DeviceSpec) -> tuple[int, cl.Device]:
     spec = _check_spec(spec)
     devices = _all_devices()
@@ -170,8 +190,7 @@ def _pick(spec: DeviceSpec) -> tuple[int, cl.Device]:
     if spec is None:
         spec = _check_spec(os.environ.get(ENV_DEVICE, "").strip() or None, ENV_DEVICE)
     if spec is None:
-        gpus = [i for i, d in enumerate(devices) if d.type & cl.device_type.GPU]
-        i = gpus[0] if gpus else 0
+        i = _default_index(devices)
         return i, devices[i]
     if isinstance(spec, str) and spec.strip().isdigit():
         spec = int(spec)

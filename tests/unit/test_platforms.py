@@ -9,7 +9,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+from types import SimpleNamespace
+
 import conftest
+import pyopencl as cl
 import pytest
 
 from clrecon.cli import main
@@ -36,14 +39,26 @@ def test_select_devices_by_index_or_name_substring():
     assert [d.index for d in conftest.default_devices(devs)] == [1, 2]  # no simulator
 
 
+def test_default_device_is_the_first_real_gpu_else_the_first_real_device():
+    def fake(platform, kind):
+        return SimpleNamespace(platform=SimpleNamespace(name=platform), type=kind)
+    gpu, cpu = cl.device_type.GPU, cl.device_type.CPU
+    grind, pocl = fake("Oclgrind", gpu), fake("Portable Computing Language", cpu)
+    assert cldev._default_index([grind, pocl]) == 1
+    assert cldev._default_index([pocl, fake("NVIDIA CUDA", gpu), grind]) == 1
+    assert cldev._default_index([fake("Intel(R) OpenCL", cpu), pocl, grind]) == 0
+    assert cldev._default_index([grind]) == 0  # nothing else: the simulator
+    assert cldev.is_simulator(" oclgrind ") and not cldev.is_simulator("Intel(R) OpenCL")
+
+
 def test_device_option_reaches_get_device(pytestconfig):
     """Run with ``--device`` (test_device_option_runs_only_the_matching_devices does): tests
     that let get_device() choose get the first matching device through CLRECON_DEVICE."""
     spec = pytestconfig.getoption("--device")
     if spec is None:
         assert conftest._SELECTED == conftest.default_devices(conftest._DEVICES)
-        if conftest._SELECTED != conftest._DEVICES and conftest._ENV_BEFORE == [None]:
-            assert cldev.get_device().info.index == conftest._SELECTED[0].index
+        if os.environ.get(cldev.ENV_DEVICE) is None:  # clrecon's own choice: no simulator
+            assert cldev.get_device().info in conftest._SELECTED
         return
     if spec.strip().lower() == "all":
         assert conftest._SELECTED == conftest._DEVICES
@@ -84,9 +99,9 @@ def test_device_option_runs_only_the_matching_devices():
 
 
 def test_default_run_leaves_the_simulator_out(tmp_path):
-    """With Oclgrind registered beside PoCL, the run without --device collects PoCL's device
-    only, names Oclgrind as left out, and lets get_device() choose PoCL; --device all takes
-    both."""
+    """With Oclgrind (a GPU) registered beside PoCL (a CPU), the run without --device
+    collects PoCL's device only, names Oclgrind as left out, and get_device() takes PoCL;
+    --device all takes both; get_device("Oclgrind") is still the simulator."""
     lib = Path("/usr/lib/oclgrind/liboclgrind-rt-icd.so")
     if not lib.exists():
         pytest.skip("Oclgrind (Debian's oclgrind) is not installed")
@@ -114,6 +129,12 @@ def test_default_run_leaves_the_simulator_out(tmp_path):
                           "tests/unit/test_platforms.py::test_device_option_reaches_get_device"],
                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0 and "1 passed" in res.stdout, res.stdout + res.stderr
+    res = subprocess.run([sys.executable, "-c", "from clrecon.core import device as d; "
+                          "print(d.get_device().info.platform, '|', "
+                          "d.get_device('oclgrind').info.platform)"],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert res.stdout.split() and res.stdout.strip() == (
+        "Portable Computing Language | Oclgrind"), res.stdout + res.stderr
 
 
 def test_device_option_matching_nothing_is_a_usage_error():
