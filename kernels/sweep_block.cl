@@ -19,9 +19,12 @@
  *      sweep_block_masks).
  *   Per sample: D = dscale * max(2 |coc(w)|, |motion|) (motion term only with SMOOTH_MOTION),
  *   coc(w) = c0 / w + c1, computed as sweep_prepare does.
- * Inputs: SoA sample fields color (H,W,S,3), depth (H,W,S) (> 0 or inf), motion (H,W,S,2)
- *   (positions are not needed: every sample counts as inside its own pixel, as the
- *   reference's clamp makes it). Output: out (H, W, 3) float32.
+ * Inputs: SoA sample fields color (H,W,T,3), depth (H,W,T) (> 0 or inf), motion (H,W,T,2)
+ *   with T = stride samples per pixel in the buffers, of which this frame's SPP are
+ *   offset .. offset + SPP - 1 (a whole frame: stride SPP, offset 0; one half of a frame
+ *   read in place for the safeguard: stride the frame's spp); positions are not needed:
+ *   every sample counts as inside its own pixel, as the reference's clamp makes it.
+ *   Output: out (H, W, 3) float32.
  * Compile-time: SPP (<= 255), SCALES (2 or 4), SMOOTH_MOTION (0/1), EXPONENT and
  *   EXPONENT_ON (the paper's 1.3 variant: weights raised to EXPONENT; defaults and R in
  *   sweep.h), SUPER (1 or 2: the host takes 2 where its local memory fits,
@@ -176,7 +179,8 @@ inline void sweep_block_step(sweep_block_state *st, const sweep_block_masks *mk,
 
 __kernel __attribute__((reqd_work_group_size(GROUP, 1, 1)))
 void sweep_block(__global const float *color, __global const float *depth,
-                 __global const float *motion, const int width, const int height,
+                 __global const float *motion, const int stride, const int offset,
+                 const int width, const int height,
                  const float c0, const float c1, const float dscale, __global float *out)
 {
     __local ulong lsort[GROUP][2][SORT_SLOTS];
@@ -195,7 +199,7 @@ void sweep_block(__global const float *color, __global const float *depth,
     uint lo = 0x7F800000u, top = 0;  /* smallest key, largest finite one */
     for (int ty = max(0, -y0); ty < min(SW, height - y0); ++ty) {
         for (int tx = max(0, -x0); tx < min(SW, width - x0); ++tx) {
-            const int base = pixel_index(x0 + tx, y0 + ty, width) * SPP;
+            const int base = pixel_index(x0 + tx, y0 + ty, width) * stride + offset;
             for (int s = 0; s < SPP; ++s, ++n) {
                 const int g = base + s;
                 const float z = depth[g];

@@ -33,12 +33,26 @@ class DeviceSamples:
     buffers: dict[str, cl.Buffer]
     coc: tuple[float, float]
     info: FrameInfo | None = None
+    #: samples per pixel in the buffers (``None``: ``spp``) and the first of them this frame
+    #: reads: sample ``i`` of pixel ``p`` is element ``p * stride + offset + i``. A frame with
+    #: ``(stride, offset) != (spp, 0)`` is a *view* (:meth:`view`: one half of a frame's
+    #: samples, read in place); only a pipeline whose passes say so takes one
+    #: (``Pipeline.sample_views``), and ``[name]`` refuses to hand out a view's field.
+    stride: int | None = None
+    offset: int = 0
 
     def __post_init__(self):
-        for name in ("height", "width", "spp"):
+        if self.stride is None:
+            self.stride = self.spp
+        for name in ("height", "width", "spp", "stride"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"samples: {name} must be a positive integer, got {v!r}")
+        o = self.offset
+        if isinstance(o, bool) or not isinstance(o, (int, np.integer)) or not (
+                0 <= o and o + self.spp <= self.stride):
+            raise ValueError(f"samples: offset must be an integer with 0 <= offset and offset "
+                             f"+ spp <= stride ({self.spp} + offset <= {self.stride}), got {o!r}")
         try:
             c0, c1 = (float(c) for c in self.coc)
         except (TypeError, ValueError):
@@ -46,7 +60,7 @@ class DeviceSamples:
         if not (np.isfinite(c0) and np.isfinite(c1)):
             raise ValueError(f"samples: coc coefficients must be finite, got {self.coc!r}")
         self.coc = (c0, c1)
-        n = self.height * self.width * self.spp
+        n = self.height * self.width * self.stride
         for name, b in self.buffers.items():
             if name not in FIELDS:
                 raise ValueError(f"samples: unknown field {name!r}; fields are {list(FIELDS)}")
@@ -54,7 +68,7 @@ class DeviceSamples:
             if not isinstance(b, cl.MemoryObjectHolder) or b.size < need:
                 size = getattr(b, "size", type(b).__name__)
                 raise ValueError(f"samples: field {name!r} needs a buffer of at least {need} "
-                                 f"bytes (float32, {self.width}x{self.height}x{self.spp}), "
+                                 f"bytes (float32, {self.width}x{self.height}x{self.stride}), "
                                  f"got {size}")
         if self.info is not None and (self.info.width, self.info.height, self.info.spp) != (
                 self.width, self.height, self.spp):
@@ -106,7 +120,30 @@ class DeviceSamples:
     def shape(self) -> tuple[int, int, int]:
         return (self.height, self.width, self.spp)
 
+    @property
+    def is_view(self) -> bool:
+        return (self.stride, self.offset) != (self.spp, 0)
+
+    def view(self, spp: int, offset: int, info: FrameInfo | None = None) -> DeviceSamples:
+        """Samples ``offset .. offset + spp - 1`` of every pixel of this frame, in place (no
+        copy): a frame of ``spp`` samples per pixel described by ``info``."""
+        if self.is_view:
+            raise ValueError("samples: a view of a view is not supported")
+        return DeviceSamples(self.height, self.width, spp, dict(self.buffers), self.coc, info,
+                             self.spp, offset)
+
+    def strided(self, name: str) -> tuple[cl.Buffer, int, int]:
+        """``(buffer, stride, offset)`` of field ``name``: for a pass that reads views."""
+        return self._field(name), int(self.stride), int(self.offset)
+
     def __getitem__(self, name: str) -> cl.Buffer:
+        if self.is_view:
+            raise ValueError(f"samples: field {name!r} of a view (samples {self.offset}.."
+                             f"{self.offset + self.spp - 1} of {self.stride} per pixel) read "
+                             f"as a whole frame; a pass that reads views uses strided()")
+        return self._field(name)
+
+    def _field(self, name: str) -> cl.Buffer:
         try:
             return self.buffers[name]
         except KeyError:
@@ -120,6 +157,8 @@ class DeviceSamples:
         ``allow_negative`` accepts negative colours (as ``SampleBuffer.validate``); a
         pipeline called without ``info`` validates with the default, so a frame with
         negative radiance is inspected here first."""
+        if self.is_view:
+            raise ValueError("samples: a view is not inspected on the device; give its info")
         self.info = inspect_device(queue, self.buffers, self.height, self.width, self.spp,
                                    self.coc, validate=validate, wait_for=wait_for,
                                    allow_negative=allow_negative)

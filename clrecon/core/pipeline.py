@@ -67,6 +67,10 @@ class Pipeline:
     #: steps the safeguard runs on the frame alone, whose outputs the halves' runs take
     #: (layered's depth statistics and partitions: both halves then filter the same layers)
     shared_steps: ClassVar[tuple[str, ...]] = ()
+    #: every pass of the plan reads its samples through ``DeviceSamples.strided``, so a view
+    #: of a frame (``DeviceSamples.view``: one half, in place) runs as a frame of its own; the
+    #: safeguard then reads the halves without copying them (set by the method per plan)
+    sample_views: bool = False
 
     def __init__(self, context: cl.Context, info: FrameInfo):
         self.context = context
@@ -134,6 +138,11 @@ class Pipeline:
                              f"{samples.width}x{samples.height} image "
                              f"({samples.height * samples.width * 12} bytes)")
         self._check_fields(samples)
+        if samples.is_view and not self.sample_views:
+            raise ValueError(f"samples: the {self.name} pipeline ({self.plan.name}) reads whole "
+                             f"frames, not a view (samples {samples.offset}.."
+                             f"{samples.offset + samples.spp - 1} of {samples.stride} per "
+                             f"pixel)")
         info = self._frame_info(queue, samples, wait_for)
         bad = self.check(info)
         if bad:

@@ -56,7 +56,8 @@ built-in scenes at 4-16 spp (512x512) and 32-64 spp (256x256), the halves' mean 
 (the -0.13: bokeh at 64 spp).
 
 Cost: the method runs on both halves (layered's statistics and partitions on the frame),
-plus one split copy of the fields and three cheap passes (the statistics, and the windowed
+plus one split copy of the fields (none where the method's passes read each half in place,
+``Pipeline.sample_views``: sweep's block sort) and three cheap passes (the statistics, and the windowed
 means in two separable passes: row segments, then columns and the blend). ``safeguard=False`` is the
 papers' method alone (``mode="paper"`` in reports); ``estimate_error=True`` also returns the
 error image.
@@ -189,11 +190,12 @@ class Safeguarded(Pipeline):
     ``blend=False`` keeps the method's image (the error estimate alone); with ``inner ==
     "box"`` the image is box's and the error its variance (the halves are not re-run).
     The error image is the temporary ``"error"`` ((H, W) float32: the estimated squared
-    error of the image, linear radiance, mean over RGB).
+    error of the image, linear radiance, mean over RGB). ``views=False`` copies the halves
+    (``safeguard_split``) even where the method could read them in place.
     """
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
-                 full: Pipeline | None = None):
+                 full: Pipeline | None = None, views: bool = True):
         if info.spp < 2:
             raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent "
                              f"halves), the frame has {info.spp}")
@@ -226,23 +228,28 @@ class Safeguarded(Pipeline):
         inner_fields = tuple(f for f in FIELDS if f in set(self.full.plan.fields) | {"color"})
         temps = {"m": npx * 12, "box": npx * 12, "stats": npx * 16, "rows3": npx * 16,
                  "rows7": npx * 16, "error": npx * 4}
+        # halves whose passes read a view of the frame (DeviceSamples.view) are read in place;
+        # the others from copies (safeguard_split): a full read and write of their fields
+        self.views = bool(views) and not is_box and self.half_a.sample_views and \
+            self.half_b.sample_views
+        half_fields = inner_fields if self.views else tuple(
+            f"{h}.{f}" for h in "ab" for f in inner_fields)
         steps = []
         if not is_box:
             temps |= {"ma": npx * 12, "mb": npx * 12}
-            for half, n in (("a", ha), ("b", hb)):
-                for f in inner_fields:
-                    temps[f"{half}.{f}"] = npx * n * int(np.prod(FIELDS[f])) * 4
-            steps.append(Step("safeguard_split", inner_fields,
-                              tuple(f"{h}.{f}" for h in "ab" for f in inner_fields),
-                              self._split_step(inner_fields)))
+            if not self.views:
+                for half, n in (("a", ha), ("b", hb)):
+                    for f in inner_fields:
+                        temps[f"{half}.{f}"] = npx * n * int(np.prod(FIELDS[f])) * 4
+                steps.append(Step("safeguard_split", inner_fields, half_fields,
+                                  self._split_step(inner_fields)))
             if not self.halves_mean:
                 steps.append(Step(method, inner_fields, ("m",), self._inner_step()))
             elif self.shared:
                 steps.append(Step(f"{method} ({', '.join(self.shared)})", inner_fields, (),
                                   self._inner_step(self.shared)))
-            steps.append(Step(f"{method} (halves)",
-                              tuple(f"{h}.{f}" for h in "ab" for f in inner_fields),
-                              ("ma", "mb"), self._halves_step(inner_fields)))
+            steps.append(Step(f"{method} (halves)", half_fields, ("ma", "mb"),
+                              self._halves_step(inner_fields)))
         images = () if is_box else ("ma", "mb") if self.halves_mean else ("m", "ma", "mb")
         steps.append(Step("safeguard_stats", ("color",) + images,
                           ("box", "stats") + (("m",) if self.halves_mean else ()),
@@ -280,9 +287,12 @@ class Safeguarded(Pipeline):
             evs = []
             for half, n, pipe, out in (("a", ha, self.half_a, "ma"), ("b", hb, self.half_b, "mb")):
                 info = replace(f.info, spp=n)
-                ds = DeviceSamples(f.height, f.width, n,
-                                   {k: f.buffers[f"{half}.{k}"] for k in fields},
-                                   f.samples.coc, info)
+                if self.views:
+                    ds = f.samples.view(n, 0 if half == "a" else ha, info)
+                else:
+                    ds = DeviceSamples(f.height, f.width, n,
+                                       {k: f.buffers[f"{half}.{k}"] for k in fields},
+                                       f.samples.coc, info)
                 if self.shared:  # the frame's outputs of the shared steps, the rest here
                     rest = tuple(st.name for st in pipe.plan.steps if st.name not in self.shared)
                     pipe(queue, ds, f.buffers[out], wait_for=wait_for, steps=rest,

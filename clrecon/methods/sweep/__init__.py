@@ -287,6 +287,7 @@ class SweepPipeline(Pipeline):
                                                    f.buffers["out"], wait))]
 
             reads = ("color", "depth", "motion")  # sweep_block needs no positions
+            self.sample_views = True  # it reads a view of a frame in place (strided())
             self.set_plan(Plan("sweep", "block", reads,
                                (Step("sweep_block", reads, ("out",), block),), {}, bounds))
             return

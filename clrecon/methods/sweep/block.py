@@ -99,9 +99,10 @@ class SweepBlock:
                  wait_for=None) -> cl.Event:
         w, h = samples.width, samples.height
         c0, c1 = samples.coc
-        self.kernel.set_args(samples["color"], samples["depth"], samples["motion"],
-                             np.int32(w), np.int32(h), np.float32(c0), np.float32(c1),
-                             np.float32(diameter_scale), out)
+        color, stride, offset = samples.strided("color")
+        self.kernel.set_args(color, samples.strided("depth")[0], samples.strided("motion")[0],
+                             np.int32(stride), np.int32(offset), np.int32(w), np.int32(h),
+                             np.float32(c0), np.float32(c1), np.float32(diameter_scale), out)
         side = BLOCK * self.supers
         items = -(-w // side) * -(-h // side)
         size = -(-items // self.group) * self.group

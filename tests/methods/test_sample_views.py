@@ -1,0 +1,97 @@
+"""Views of a frame's samples (``DeviceSamples.view``): the checks, the refusal by passes that
+read whole frames, and the safeguard reading its halves in place where the method's passes
+take views (sweep's block sort): bit-identical to reading copies of the halves."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+import pytest
+from layered_frames import frame
+
+from clrecon.api import make_pipeline
+from clrecon.core.pipeline import DeviceSamples
+from clrecon.core.samples import SampleBuffer
+from clrecon.methods import safeguard as sg
+
+
+def _half(buf: SampleBuffer, sl: slice) -> SampleBuffer:
+    return SampleBuffer(**{k: np.ascontiguousarray(v[:, :, sl]) for k, v in
+                           buf.arrays().items()}, coc_model=buf.coc_model)
+
+
+def _image(device, pipe, samples, buf, name="out"):
+    out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
+    pipe(device.queue, samples, out).wait()
+    img = np.empty((buf.height, buf.width) + ((3,) if name == "out" else ()), np.float32)
+    cl.enqueue_copy(device.queue, img, out if name == "out" else pipe.buffer(name))
+    return img
+
+
+def test_view_checks(device):
+    buf = frame(np.random.default_rng(1), h=6, w=7, s=4)
+    s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
+    assert not s.is_view and s.strided("color") == (s.buffers["color"], 4, 0)
+    v = s.view(2, 2)
+    assert v.is_view and v.shape == (6, 7, 2) and v.strided("depth") == (s["depth"], 4, 2)
+    with pytest.raises(ValueError, match="strided"):
+        v["color"]
+    with pytest.raises(ValueError, match="view of a view"):
+        v.view(1, 0)
+    with pytest.raises(ValueError, match="not inspected"):
+        v.inspect(device.queue)
+    for spp, offset in ((3, 2), (2, -1), (5, 0)):
+        with pytest.raises(ValueError, match="offset must be"):
+            s.view(spp, offset)
+    with pytest.raises(ValueError, match="needs a buffer of at least"):  # sized by stride
+        DeviceSamples(6, 7, 4, s.buffers, s.coc, None, 8, 0)
+
+
+def test_whole_frame_pipelines_refuse_a_view(device):
+    buf = frame(np.random.default_rng(2), h=6, w=7, s=4)
+    s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
+    info = buf.inspect()
+    half = s.view(2, 0, info.__class__(**{**info.__dict__, "spp": 2}))
+    for method in ("layered", "splat", "box"):
+        pipe = make_pipeline(method, device.context, half.info, safeguard=False)
+        assert not pipe.sample_views
+        with pytest.raises(ValueError, match="reads whole frames, not a view"):
+            _image(device, pipe, half, buf)
+
+
+@pytest.mark.parametrize("spp", [4, 5])
+def test_sweep_block_reads_a_view_as_its_half(device, spp):
+    buf = frame(np.random.default_rng(spp), h=13, w=11, s=spp)
+    s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
+    ha, _ = sg.halves(spp)
+    for sl, offset in ((slice(0, ha), 0), (slice(ha, None), ha)):
+        h = _half(buf, sl)
+        try:
+            pipe = make_pipeline("sweep", device.context, h.inspect(), safeguard=False,
+                                 sort="block")
+        except ValueError as e:  # a device whose local memory holds no block
+            pytest.skip(str(e))
+        assert pipe.sample_views
+        got = _image(device, pipe, s.view(h.spp, offset, h.inspect()), buf)
+        want = _image(device, pipe, DeviceSamples.upload(device.queue, h, info=h.inspect()),
+                      buf)
+        assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("spp", [4, 5])
+def test_safeguard_reads_the_halves_in_place_as_it_would_copies(device, spp):
+    buf = frame(np.random.default_rng(10 + spp), h=12, w=15, s=spp)
+    info = buf.inspect()
+    try:
+        inplace = sg.Safeguarded(device.context, info, "sweep", {"sort": "block"})
+    except ValueError as e:
+        pytest.skip(str(e))
+    copied = sg.Safeguarded(device.context, info, "sweep", {"sort": "block"}, views=False)
+    assert inplace.views and not copied.views
+    names = [st.name for st in inplace.plan.steps]
+    assert "safeguard_split" not in names and not any(
+        k.startswith(("a.", "b.")) for k in inplace.plan.temporaries)
+    assert "safeguard_split" in [st.name for st in copied.plan.steps]
+    s = DeviceSamples.upload(device.queue, buf, info=info)
+    for name in ("out", "error"):
+        assert np.array_equal(_image(device, inplace, s, buf, name),
+                              _image(device, copied, s, buf, name)), name
