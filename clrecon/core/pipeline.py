@@ -75,6 +75,7 @@ class Pipeline:
     def __init__(self, context: cl.Context, info: FrameInfo):
         self.context = context
         self.info = info
+        self.sample_views = False  # each plan (regrow re-runs __init__) says so anew
         self.events: list[tuple[str, cl.Event]] = []
         self.plan: Plan | None = None
         self._own: dict[str, cl.Buffer] = {}

@@ -95,3 +95,14 @@ def test_safeguard_reads_the_halves_in_place_as_it_would_copies(device, spp):
     for name in ("out", "error"):
         assert np.array_equal(_image(device, inplace, s, buf, name),
                               _image(device, copied, s, buf, name)), name
+
+
+def test_a_replan_says_anew_whether_it_takes_views(device):
+    """regrow re-runs __init__: a plan that reads whole frames (sweep on a frame without blur
+    is box) does not keep the block plan's word."""
+    blurred = frame(np.random.default_rng(4), h=6, w=7, s=4).inspect()
+    sharp = SampleBuffer.zeros(6, 7, 4).inspect()
+    pipe = make_pipeline("sweep", device.context, blurred, safeguard=False, sort="block")
+    assert pipe.sample_views
+    pipe.__init__(device.context, sharp)
+    assert pipe.plan.name != "block" and not pipe.sample_views
