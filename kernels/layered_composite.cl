@@ -10,7 +10,9 @@
  * w + b <= 1e-6 are skipped). Where the layers do not add up to opaque (no coverage behind),
  * the sum is divided by the accumulated opacity; a pixel no layer covers at all gets the
  * mean of its own samples (box filter).
- *   color     float (H, W, S, 3); params float (tiles, MAXP, NPAR);
+ *   color     float (H, W, T, 3), T = sample_stride samples per pixel in the buffer, this
+ *             frame's S of them from sample_offset on (a whole frame: T = S, offset 0);
+ *             params float (tiles, MAXP, NPAR);
  *   filtered  float (tiles, MAXP, NCH, FT, FT); out float (H, W, 3)
  * Compile-time: SPP, TILE, MAXP, GMAX. The local size is a launch
  * parameter only (tuned); nothing here depends on it.
@@ -22,9 +24,10 @@
 #endif
 
 /* The mean of a pixel's own samples: where no layer covers it. */
-inline float3 pixel_mean(__global const float *color, int width, int x, int y)
+inline float3 pixel_mean(__global const float *color, int stride, int offset, int width,
+                         int x, int y)
 {
-    const size_t base = ((size_t)y * width + x) * SPP;
+    const size_t base = ((size_t)y * width + x) * stride + offset;
     float3 res = (float3)(0.0f);
     for (int i = 0; i < SPP; ++i)
         res += vload3(base + i, color);
@@ -33,7 +36,8 @@ inline float3 pixel_mean(__global const float *color, int width, int x, int y)
 
 #define QUAD(q, ix) ((float4)((q)[(ix).s0], (q)[(ix).s1], (q)[(ix).s2], (q)[(ix).s3]))
 
-__kernel void composite(__global const float *color, __global const float *params,
+__kernel void composite(__global const float *color, const int sample_stride,
+                        const int sample_offset, __global const float *params,
                         __global const float *filtered, const int width, const int height,
                         const int ntx, __global float *out)
 {
@@ -97,7 +101,7 @@ __kernel void composite(__global const float *color, __global const float *param
         const int x = x4 + l;
         float3 res = (float3)(r[l], g[l], b[l]);
         if (!cov[l])
-            res = pixel_mean(color, width, x, y);
+            res = pixel_mean(color, sample_stride, sample_offset, width, x, y);
         vstore3(res, (size_t)y * width + x, out);
     }
 #else
@@ -134,7 +138,8 @@ __kernel void composite(__global const float *color, __global const float *param
         trans *= v[4] / cw;
     }
     const float3 res = trans < 1.0f - 1e-6f ? acc / (1.0f - trans)
-                                            : pixel_mean(color, width, x, y);
+                                            : pixel_mean(color, sample_stride,
+                                                         sample_offset, width, x, y);
     vstore3(res, (size_t)y * width + x, out);
 #endif
 }

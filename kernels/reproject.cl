@@ -16,7 +16,10 @@
  * (x' - x0) / s + G - 0.5; nearest grid pixel, or bilinear weights with SPLAT_BILINEAR.
  * Grid pixels outside [0, D) are dropped. With SUBSAMPLE = b_max > 1 (default 8), a slot on a
  * grid of spacing s > 1 reads one pixel per min(s, b_max)^2 block (see below).
- *   inputs  SoA sample fields (color, position, lens, time), buckets from reproject_buckets;
+ *   inputs  SoA sample fields (color, position, lens, time) with sample_stride samples per
+ *           pixel in the buffers, this frame's SPP from sample_offset on (a whole frame:
+ *           stride SPP, offset 0; a half of one read in place: the frame's spp); buckets
+ *           from reproject_buckets (SPP per pixel, this frame's own);
  *           params from partition_setup; grids float (tiles, MAXP, NCH, DMAX, DMAX), row
  *           stride D.
  * With WG_X > 1 work-items scatter with atomic_add_f32 (common.h); with WG_X == 1 the one
@@ -116,18 +119,20 @@ inline void splat(__global ACC *grid, int dim, int gx, int gy, float wt, float3 
 #error "reproject_buckets stores a bucket in a uchar: NBUCKETS <= 256"
 #endif
 
-__kernel void reproject_buckets(__global const float *depth, const int npix, const float ka,
+__kernel void reproject_buckets(__global const float *depth, const int sample_stride,
+                                const int sample_offset, const int npix, const float ka,
                                 const float kb, const float kc, __global uchar *buckets)
 {
     const size_t i = get_global_id(0);
     if (i >= (size_t)npix)
         return;
+    const size_t s = i * sample_stride + sample_offset;  /* the pixel's first sample */
 #if VW == 1
     for (int k = 0; k < SPP; ++k)
-        buckets[i * SPP + k] = (uchar)layered_bucket(depth[i * SPP + k], ka, kb, kc);
+        buckets[i * SPP + k] = (uchar)layered_bucket(depth[s + k], ka, kb, kc);
 #else
     for (int k = 0; k < SPP; k += VW)
-        VSTORE(CONVERT_UCHARV(bucket_lanes(VLOAD(0, depth + i * SPP + k), ka, kb, kc)), 0,
+        VSTORE(CONVERT_UCHARV(bucket_lanes(VLOAD(0, depth + s + k), ka, kb, kc)), 0,
                buckets + i * SPP + k);
 #endif
 }
@@ -135,7 +140,8 @@ __kernel void reproject_buckets(__global const float *depth, const int npix, con
 __kernel __attribute__((reqd_work_group_size(WG_X, 1, 1)))
 void reproject(__global const float *color, __global const float *position,
                __global const uchar *buckets, __global const float *lens,
-               __global const float *time, const int width, const int height,
+               __global const float *time, const int sample_stride, const int sample_offset,
+               const int width, const int height,
                const int ntx, __global const float *params, __global float *grids
 #if FIXED
                , __global long *fixed, __global const uint *bound
@@ -204,12 +210,14 @@ void reproject(__global const float *color, __global const float *position,
             const int px = cx * sub + ox;
             if (px < ax || px >= bx)
                 continue;
-            const size_t base = ((size_t)py * width + px) * SPP;
+            /* the pixel's first sample in the fields, and its first bucket */
+            const size_t base = ((size_t)py * width + px) * sample_stride + sample_offset;
+            const size_t kbase = ((size_t)py * width + px) * SPP;
             for (int i0 = 0; i0 < SPP; i0 += VW) {
                 /* VW samples at once (SIMD on CPUs), then added one by one */
                 float gxa[VW], gya[VW], bka[VW];
-                if (!reproject_lanes(base + i0, position, buckets, lens, time, lo, A, bm, x0,
-                                     y0, inv_s, g, gxa, gya, bka))
+                if (!reproject_lanes(base + i0, kbase + i0, position, buckets, lens, time, lo,
+                                     A, bm, x0, y0, inv_s, g, gxa, gya, bka))
                     continue;   /* no sample of these lanes at or behind the slot */
 #if !SPLAT_BILINEAR && VW > 1
                 /* nearest: grid index (-1: dropped) and own flag in vectors, so the scalar

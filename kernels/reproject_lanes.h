@@ -77,13 +77,13 @@ inline floatv bucket_lanes(floatv w, float ka, float kb, float kc)
 }
 #endif
 
-inline int reproject_lanes(size_t s0, __global const float *position,
+inline int reproject_lanes(size_t s0, size_t k0, __global const float *position,
                            __global const uchar *buckets, __global const float *lens,
                            __global const float *time, int lo, float A, float2 bm, int x0,
                            int y0, float inv_s, float g, float *gx, float *gy, float *bk)
 {
 #if VW == 1
-    bk[0] = (float)buckets[s0];
+    bk[0] = (float)buckets[k0];
     if (bk[0] < (float)lo)
         return 0;
     float2 q = vload2(s0, position) - A * vload2(s0, lens);
@@ -94,7 +94,7 @@ inline int reproject_lanes(size_t s0, __global const float *position,
     gy[0] = (q.y - y0) * inv_s + g;
     return 1;
 #else
-    const floatv b = CONVERT_FLOATV(VLOAD(0, buckets + s0));
+    const floatv b = CONVERT_FLOATV(VLOAD(0, buckets + k0));
     VSTORE(b, 0, bk);
     /* every sample in front of the slot: skip the other fields' reads */
     if (!any(isgreaterequal(b, (floatv)((float)lo))))

@@ -2,7 +2,9 @@
  * mean and variance of CoC and motion follow (Hasselgren et al. 2015, section 4).
  *
  * tile_stats: one work-item per TILE x TILE tile (1D range over ntx * nty tiles).
- *   depth   float (H, W, S); motion float (H, W, S, 2) (read only with HAS_MOTION)
+ *   depth   float (H, W, T); motion float (H, W, T, 2) (read only with HAS_MOTION), T =
+ *           sample_stride samples per pixel in the buffers, this frame's S from
+ *           sample_offset on (a whole frame: T = S, offset 0)
  *   stats   float (tiles, NBUCKETS, NSTAT): n, sum coc, sum coc^2, sum mx, sum my,
  *           sum mx^2, sum my^2, sum mx*my (layered.h)
  * A tile's samples are addressed a = m * S + i, m the Morton index of the pixel in the tile
@@ -20,6 +22,7 @@
 #endif
 
 __kernel void tile_stats(__global const float *depth, __global const float *motion,
+                         const int sample_stride, const int sample_offset,
                          const int width, const int height, const int ntx, const int ntiles,
                          const float ka, const float kb, const float kc, const float c0,
                          const float c1, const int stride, const uint seed,
@@ -44,7 +47,7 @@ __kernel void tile_stats(__global const float *depth, __global const float *moti
         const int x = x0 + (int)morton_even(m), y = y0 + (int)morton_even(m >> 1);
         if (x >= width || y >= height)
             continue;
-        const size_t s = ((size_t)y * width + x) * SPP + a % SPP;
+        const size_t s = ((size_t)y * width + x) * sample_stride + sample_offset + a % SPP;
         const float w = depth[s];
         const int b = layered_bucket(w, ka, kb, kc);
         const float coc = (w < MISS_DEPTH) ? c0 / w + c1 : c1;

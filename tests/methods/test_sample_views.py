@@ -1,6 +1,7 @@
 """Views of a frame's samples (``DeviceSamples.view``): the checks, the refusal by passes that
 read whole frames, and the safeguard reading its halves in place where the method's passes
-take views (sweep's block sort): bit-identical to reading copies of the halves."""
+take views (sweep's block sort, layered but its fixed-point plan): bit-identical to reading
+copies of the halves."""
 from __future__ import annotations
 
 import numpy as np
@@ -51,7 +52,7 @@ def test_whole_frame_pipelines_refuse_a_view(device):
     s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
     info = buf.inspect()
     half = s.view(2, 0, info.__class__(**{**info.__dict__, "spp": 2}))
-    for method in ("layered", "splat", "box"):
+    for method in ("splat", "box"):
         pipe = make_pipeline(method, device.context, half.info, safeguard=False)
         assert not pipe.sample_views
         with pytest.raises(ValueError, match="reads whole frames, not a view"):
@@ -77,16 +78,20 @@ def test_sweep_block_reads_a_view_as_its_half(device, spp):
         assert np.array_equal(got, want)
 
 
+@pytest.mark.parametrize("method, knobs", [("sweep", {"sort": "block"}), ("layered", {}),
+                                           ("layered", {"splat": "bilinear"})])
 @pytest.mark.parametrize("spp", [4, 5])
-def test_safeguard_reads_the_halves_in_place_as_it_would_copies(device, spp):
+def test_safeguard_reads_the_halves_in_place_as_it_would_copies(device, spp, method, knobs):
     buf = frame(np.random.default_rng(10 + spp), h=12, w=15, s=spp)
     info = buf.inspect()
     try:
-        inplace = sg.Safeguarded(device.context, info, "sweep", {"sort": "block"})
-    except ValueError as e:
+        inplace = sg.Safeguarded(device.context, info, method, knobs)
+    except ValueError as e:  # a device whose local memory holds no sweep block
         pytest.skip(str(e))
-    copied = sg.Safeguarded(device.context, info, "sweep", {"sort": "block"}, views=False)
-    assert inplace.views and not copied.views
+    copied = sg.Safeguarded(device.context, info, method, knobs, views=False)
+    assert inplace.views == inplace.half_a.sample_views and not copied.views
+    if not inplace.views:
+        pytest.skip(f"{method} {knobs} reads whole frames on this device")
     names = [st.name for st in inplace.plan.steps]
     assert "safeguard_split" not in names and not any(
         k.startswith(("a.", "b.")) for k in inplace.plan.temporaries)
@@ -95,6 +100,25 @@ def test_safeguard_reads_the_halves_in_place_as_it_would_copies(device, spp):
     for name in ("out", "error"):
         assert np.array_equal(_image(device, inplace, s, buf, name),
                               _image(device, copied, s, buf, name)), name
+    # the error estimate alone runs the whole plan (layered's statistics too) on each half
+    alone = sg.Safeguarded(device.context, info, method, knobs, blend=False)
+    alone_copied = sg.Safeguarded(device.context, info, method, knobs, blend=False,
+                                  views=False)
+    assert alone.views
+    assert np.array_equal(_image(device, alone, s, buf, "error"),
+                          _image(device, alone_copied, s, buf, "error"))
+
+
+def test_fixed_point_layered_reads_whole_frames(device, monkeypatch):
+    """deterministic=True with a tuned wg_x > 1 accumulates in fixed point, scaled by a colour
+    bound over the frame's samples: that plan does not take views, the safeguard copies."""
+    monkeypatch.setenv("CLRECON_TUNE_REPROJECT", '{"wg_x": 16, "wg_y": 1}')
+    info = frame(np.random.default_rng(5), h=12, w=15, s=4).inspect()
+    pipe = sg.Safeguarded(device.context, info, "layered", {"deterministic": True})
+    if not pipe.half_a.fixed:
+        pytest.skip("no int64 atomics: the plan runs wg_x = 1")
+    assert not pipe.half_a.sample_views and not pipe.views
+    assert "safeguard_split" in [st.name for st in pipe.plan.steps]
 
 
 def test_a_replan_says_anew_whether_it_takes_views(device):

@@ -32,6 +32,30 @@ def test_composite_matches_reference(device, rng, tile):
     assert_close(got, want, rtol=1e-4, atol=1e-5, what="composite")
 
 
+@pytest.mark.parametrize("tile", [16, 2], ids=["float4-lanes", "one-pixel"])
+def test_composite_reads_the_frame_from_a_wider_buffer(device, rng, tile):
+    """The pixel means (where no layer covers) of a frame that is samples 2 .. 2 + S - 1 of a
+    buffer with S + 3 per pixel (a view, DeviceSamples.strided): the reference's image."""
+    layout = geom.Layout(**{**LAYOUT.__dict__, "tile": tile})
+    buf = frame(rng, h=21, w=19)
+    params = params_of(buf, layout)
+    p64 = params.astype(np.float64)
+    grids = ref.reproject(fields(buf), p64, bucket_coeffs(buf, layout), layout)
+    filtered = ref.filter_sheared_y(p64, ref.filter_sheared_x(p64, grids), layout)
+    filtered[0] = 0.0  # the first tile's layers cover nothing: its pixels are means
+    s = buf.spp
+    wide = rng.uniform(50.0, 60.0, (buf.height, buf.width, s + 3, 3)).astype(np.float32)
+    wide[:, :, 2:2 + s] = buf.color
+    q = device.queue
+    out = empty(q, (buf.height, buf.width, 3))
+    ev = LayeredComposite(device.context, layout)(
+        q, to_device(q, wide), to_device(q, params), to_device(q, filtered), buf.width,
+        buf.height, out, sample_stride=s + 3, sample_offset=2)
+    got = read(q, out, (buf.height, buf.width, 3), [ev])
+    want = ref.composite(buf.color, p64, filtered, layout)
+    assert_close(got, want, rtol=1e-4, atol=1e-5, what="composite of the view")
+
+
 def test_front_to_back_blend():
     """Two layers: front opacity 0.25 red over an opaque blue: 0.25 red + 0.75 blue."""
     layout = geom.Layout(tile=2, nbuckets=4, maxp=2, gmax=2, spp=1)

@@ -251,6 +251,8 @@ class LayeredPipeline(Pipeline):
         self.composite_pass = LayeredComposite(context, self.layout,
                                                self._local(LayeredComposite.TUNABLE))
         self.set_plan(self._plan(info))
+        # every pass reads through strided(); the fixed-point colour bound reads the frame
+        self.sample_views = not self.fixed
 
     def _mip_atlas(self, want: bool | None, nslots: int) -> dict | None:
         """The atlas filter_mip reads through the linear sampler, or None for buffers: asked
@@ -331,9 +333,10 @@ class LayeredPipeline(Pipeline):
 
         def composite(queue, f, wait):
             b = f.buffers
-            return [("layered_composite", self.composite_pass(queue, b["color"], b["params"],
+            color, stride, offset = f.samples.strided("color")
+            return [("layered_composite", self.composite_pass(queue, color, b["params"],
                                                               b["filtered"], f.width, f.height,
-                                                              b["out"], wait))]
+                                                              b["out"], wait, stride, offset))]
 
         work = tuple(k for k in ("pyramid", "tmp") if k in temps)
         fixed = ("grids_fixed", "color_bound") if self.fixed else ()

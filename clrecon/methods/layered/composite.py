@@ -24,9 +24,15 @@ class LayeredComposite:
         self.kernel = layered_kernel(context, "layered_composite", "composite", layout, None)
 
     def __call__(self, queue, color: cl.Buffer, params: cl.Buffer, filtered: cl.Buffer,
-                 width: int, height: int, out: cl.Buffer, wait_for=None) -> cl.Event:
+                 width: int, height: int, out: cl.Buffer, wait_for=None,
+                 sample_stride: int | None = None, sample_offset: int = 0) -> cl.Event:
+        """``sample_stride`` / ``sample_offset``: the samples per pixel in ``color`` and the
+        first of this frame's (``DeviceSamples.strided``; default: a whole frame)."""
         ntx, _ = self.layout.tiles(width, height)
-        self.kernel.set_args(color, params, filtered, np.int32(width), np.int32(height),
+        if sample_stride is None:
+            sample_stride = self.layout.spp
+        self.kernel.set_args(color, np.int32(sample_stride), np.int32(sample_offset), params,
+                             filtered, np.int32(width), np.int32(height),
                              np.int32(ntx), out)
         per = 4 if self.layout.tile >= 4 else 1
         g, loc = local_for(self.local, (-(-width // per), height))

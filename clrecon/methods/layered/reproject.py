@@ -79,14 +79,16 @@ class Reproject:
             buckets = self._own_buckets
         elif buckets.size < need:
             raise ValueError(f"buckets: needs {need} bytes, got {buckets.size}")
-        self.bucket_kernel.set_args(samples["depth"], np.int32(npix),
+        depth, sstride, soffset = samples.strided("depth")
+        self.bucket_kernel.set_args(depth, np.int32(sstride), np.int32(soffset), np.int32(npix),
                                     *(np.float32(v) for v in bucket_coeffs), buckets)
         ev = cl.enqueue_nd_range_kernel(queue, self.bucket_kernel, (npix,), None,
                                         wait_for=wait_for)
         # named as the pass: its time and bytes are the pass's (reports list passes by name)
         self.events = [("reproject", ev)]
-        time = samples.buffers.get("time", samples["depth"])
-        args = [samples["color"], samples["position"], buckets, samples["lens"], time,
+        time = samples.strided("time")[0] if "time" in samples.buffers else depth
+        args = [samples.strided("color")[0], samples.strided("position")[0], buckets,
+                samples.strided("lens")[0], time, np.int32(sstride), np.int32(soffset),
                 np.int32(samples.width), np.int32(samples.height), np.int32(ntx), params,
                 grids]
         deps = [ev]

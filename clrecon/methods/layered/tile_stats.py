@@ -29,9 +29,11 @@ class TileStats:
                  stats: cl.Buffer, wait_for=None) -> cl.Event:
         ntx, nty = self.layout.tiles(samples.width, samples.height)
         c0, c1 = samples.coc
-        motion = samples.buffers.get("motion", samples["depth"])
+        depth, sstride, soffset = samples.strided("depth")
+        motion = samples.strided("motion")[0] if "motion" in samples.buffers else depth
         ka, kb, kc = bucket_coeffs
-        self.kernel.set_args(samples["depth"], motion, np.int32(samples.width),
+        self.kernel.set_args(depth, motion, np.int32(sstride), np.int32(soffset),
+                             np.int32(samples.width),
                              np.int32(samples.height), np.int32(ntx), np.int32(ntx * nty),
                              np.float32(ka), np.float32(kb), np.float32(kc), np.float32(c0),
                              np.float32(c1), np.int32(stride), np.uint32(seed), stats)
