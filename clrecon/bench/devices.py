@@ -27,7 +27,8 @@ leaf plan step, one that launches kernels itself: a step that runs a sub-pipelin
 safeguarded method's ``sweep`` and ``sweep (halves)`` steps) is looked into, down to the
 steps of the method's own plan. The byte count of a pass is that of the buffers its
 :class:`clrecon.core.plan.Step` names as ``inputs`` and ``outputs``, at the size bound for
-the call (sample fields as uploaded or split into halves, temporaries as planned, ``out``
+the call (sample fields as uploaded or split into halves, the frame's for a half read in
+place, temporaries as planned, ``out``
 ``H * W * 12``), each input read once and each output written once (a buffer a step both
 reads and writes counts twice; a step run twice, for both halves, counts twice). Caches can
 serve re-reads of a neighbourhood, so this is a floor of the traffic, and the GB/s a floor

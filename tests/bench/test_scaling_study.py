@@ -55,8 +55,9 @@ def test_quick_study_numbers(tmp_path, device):
                                 rel_tol=1e-6)  # two runs: the sum of medians is the median
         assert fr["results"]["box"]["passes"][0]["name"] == "box"
     sweep = res["frames"]["64x64 2spp"]["results"]["sweep"]
-    assert {"safeguard_split", "safeguard_rows + safeguard_blend"} <= {
-        p["name"] for p in sweep["passes"]}
+    names = {p["name"] for p in sweep["passes"]}  # the halves read in place: no split
+    assert {"sweep_block (halves)", "safeguard_rows + safeguard_blend"} <= names
+    assert "safeguard_split" not in names
     for series, want in (("coc", [2, 6]), ("motion", [0, 12])):
         pts = res["series"][series]
         assert [p["x"] for p in pts] == want
@@ -67,7 +68,7 @@ def test_quick_study_numbers(tmp_path, device):
             assert fr["max_abs_motion"] == pytest.approx(motion, rel=0.02, abs=0.0)
     assert "python tools/scaling_study.py --quick" in res["command"]
     for text in ("## Frames", "against resolution", "against blur size", "against spp",
-                 "Byte model", "| sweep | safeguard_split |", "(study/shares.png)"):
+                 "Byte model", "| sweep | sweep_block (halves) |", "(study/shares.png)"):
         assert text in md, text
 
 
