@@ -13,9 +13,12 @@ from clrecon.methods.layered.composite import LayeredComposite
 
 
 @pytest.mark.parametrize("tile", [16, 2], ids=["float4-lanes", "one-pixel"])
-def test_composite_matches_reference(device, rng, tile):
+@pytest.mark.parametrize("wide", [False, True], ids=["frame", "view"])
+def test_composite_matches_reference(device, rng, tile, wide):
     """Four pixels per work-item (tiles >= 4; 19 px wide, so the last quad is partial) and
-    one per work-item (tile 2) give the reference's image."""
+    one per work-item (tile 2) give the reference's image; so does a frame that is samples
+    2 .. 2 + S - 1 of a buffer with S + 3 per pixel (a view, DeviceSamples.strided), read
+    where no layer covers (the pixel means)."""
     layout = geom.Layout(**{**LAYOUT.__dict__, "tile": tile})
     buf = frame(rng, h=35, w=19)
     params = params_of(buf, layout)
@@ -23,37 +26,21 @@ def test_composite_matches_reference(device, rng, tile):
     grids = ref.reproject(fields(buf), p64, bucket_coeffs(buf, layout), layout)
     filtered = ref.filter_sheared_y(p64, ref.filter_sheared_x(p64, grids), layout)
     filtered[0, 0] = 0.0  # a tile whose front layer covers nothing
-    q = device.queue
-    out = empty(q, (buf.height, buf.width, 3))
-    ev = LayeredComposite(device.context, layout)(q, to_device(q, buf.color), to_device(q, params),
-                                           to_device(q, filtered), buf.width, buf.height, out)
-    got = read(q, out, (buf.height, buf.width, 3), [ev])
-    want = ref.composite(buf.color, p64, filtered, layout)
-    assert_close(got, want, rtol=1e-4, atol=1e-5, what="composite")
-
-
-@pytest.mark.parametrize("tile", [16, 2], ids=["float4-lanes", "one-pixel"])
-def test_composite_reads_the_frame_from_a_wider_buffer(device, rng, tile):
-    """The pixel means (where no layer covers) of a frame that is samples 2 .. 2 + S - 1 of a
-    buffer with S + 3 per pixel (a view, DeviceSamples.strided): the reference's image."""
-    layout = geom.Layout(**{**LAYOUT.__dict__, "tile": tile})
-    buf = frame(rng, h=21, w=19)
-    params = params_of(buf, layout)
-    p64 = params.astype(np.float64)
-    grids = ref.reproject(fields(buf), p64, bucket_coeffs(buf, layout), layout)
-    filtered = ref.filter_sheared_y(p64, ref.filter_sheared_x(p64, grids), layout)
-    filtered[0] = 0.0  # the first tile's layers cover nothing: its pixels are means
+    filtered[1] = 0.0  # a tile whose layers cover nothing: its pixels are means
     s = buf.spp
-    wide = rng.uniform(50.0, 60.0, (buf.height, buf.width, s + 3, 3)).astype(np.float32)
-    wide[:, :, 2:2 + s] = buf.color
+    color, stride, offset = buf.color, s, 0
+    if wide:
+        color = rng.uniform(50.0, 60.0, (buf.height, buf.width, s + 3, 3)).astype(np.float32)
+        color[:, :, 2:2 + s] = buf.color
+        stride, offset = s + 3, 2
     q = device.queue
     out = empty(q, (buf.height, buf.width, 3))
     ev = LayeredComposite(device.context, layout)(
-        q, to_device(q, wide), to_device(q, params), to_device(q, filtered), buf.width,
-        buf.height, out, sample_stride=s + 3, sample_offset=2)
+        q, to_device(q, color), to_device(q, params), to_device(q, filtered), buf.width,
+        buf.height, out, sample_stride=stride, sample_offset=offset)
     got = read(q, out, (buf.height, buf.width, 3), [ev])
     want = ref.composite(buf.color, p64, filtered, layout)
-    assert_close(got, want, rtol=1e-4, atol=1e-5, what="composite of the view")
+    assert_close(got, want, rtol=1e-4, atol=1e-5, what="composite")
 
 
 def test_front_to_back_blend():
