@@ -47,11 +47,6 @@ def select_devices(spec: str, devices: list[cldev.DeviceInfo]) -> list[cldev.Dev
     return [d for d in devices if spec and spec.lower() in d.label.lower()]
 
 
-def _set_env_device(value: str) -> None:
-    _ENV_BEFORE.append(os.environ.get(cldev.ENV_DEVICE))
-    os.environ[cldev.ENV_DEVICE] = value
-
-
 def pytest_configure(config):
     spec = config.getoption("--device")
     if spec is None:
@@ -69,7 +64,9 @@ def pytest_configure(config):
             f"--device {spec!r} matches no OpenCL device (give an index, a substring of "
             f"'platform / device' or 'all'); devices: {labels}")
     _SELECTED[:] = chosen
-    _set_env_device(str(chosen[0].index) if spec.strip().lower() == "all" else spec.strip())
+    _ENV_BEFORE.append(os.environ.get(cldev.ENV_DEVICE))
+    os.environ[cldev.ENV_DEVICE] = (str(chosen[0].index) if spec.strip().lower() == "all"
+                                    else spec.strip())
 
 
 def pytest_report_header(config):
