@@ -29,15 +29,17 @@
 #endif
 #define COV_EPS 1e-7f
 
-/* color, spp: the frame's samples; a pixel that no layer covers (no sample's PSF reached it,
- * which happens at 1-4 spp), or whose layers give black, takes the mean of its own samples,
- * the unbiased estimate, instead of black. spp = 0: no samples given, such a pixel stays as
- * the layers make it. */
+/* color, spp: the frame's samples (samples offset .. offset + spp - 1 of `stride` per pixel
+ * in the buffer: a whole frame stride spp, offset 0; a half read in place, stride the
+ * frame's); a pixel that no layer covers (no sample's PSF reached it, which happens at 1-4
+ * spp), or whose layers give black, takes the mean of its own samples, the unbiased
+ * estimate, instead of black. spp = 0: no samples given, such a pixel stays as the layers
+ * make it. */
 __kernel void splat_composite(__global const float4 *b, __global const float4 *direct,
                                __global const float4 *ring, const int width, const int height,
                                const int pad, const int pw, const int ph,
                                __global const float *color, const int spp,
-                               __global float *out)
+                               const int stride, const int offset, __global float *out)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= width || y >= height)
@@ -70,7 +72,8 @@ __kernel void splat_composite(__global const float4 *b, __global const float4 *d
      * ringing): the pixel's own samples decide */
     if (spp > 0 && fmax(res.x, fmax(res.y, res.z)) <= 0.0f) {
         res = (float3)(0.0f);
-        const __global float *c = color + ((size_t)y * width + x) * (size_t)spp * 3;
+        const __global float *c = color + (((size_t)y * width + x) * (size_t)stride
+                                           + (size_t)offset) * 3;
         for (int i = 0; i < spp; ++i)
             res += vload3(i, c);
         res = fmax(res / (float)spp, 0.0f);

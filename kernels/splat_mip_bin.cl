@@ -9,9 +9,12 @@
  *   splat_mip_bin_samples  one work-item per sample, atomic adds (any device)
  *   splat_mip_bin_tiles    one work-group per owner tile, k x k phases, plain adds in a fixed
  *                          order (reproducible; below)
- * Arguments: the SoA sample fields, c0, c1 (coc = c0 / depth + c1), inv_far and layer_scale
- * (splat_layer), lv (int4 per level), bins float (pixels, 12), zeroed where they are added
- * to (the draw pass zeroes each bin it consumes).
+ * Arguments: the SoA sample fields with `stride` samples per pixel in the buffers, of which
+ * this frame's SPP are offset .. offset + SPP - 1 (a whole frame: stride SPP, offset 0; one
+ * half of a frame read in place for the safeguard: stride the frame's spp), c0, c1
+ * (coc = c0 / depth + c1), inv_far and layer_scale (splat_layer), lv (int4 per level), bins
+ * float (pixels, 12), zeroed where they are added to (the draw pass zeroes each bin it
+ * consumes). Sample k of the frame (k = pixel SPP + i) is element pixel stride + offset + i.
  * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, and the per-level lists TR, TM, RL, ML
  * (floats, NLEV each; TR[NLEV - 1], TM[NLEV - 1] unused).
  */
@@ -31,13 +34,14 @@ __constant float mip_ml[NLEV] = {ML};
 #define MIP_BIN_ARGS \
     __global const float *color, __global const float *position, \
     __global const float *depth, __global const float *lens, __global const float *time, \
-    __global const float *motion, const float c0, const float c1, const float inv_far, \
-    const float layer_scale, __global const int4 *lv, __global float *bins
+    __global const float *motion, const int stride, const int offset, const float c0, \
+    const float c1, const float inv_far, const float layer_scale, __global const int4 *lv, \
+    __global float *bins
 
-#define MIP_BIN_PASS color, position, depth, lens, time, motion, c0, c1, inv_far, \
-    layer_scale, lv, bins
+#define MIP_BIN_PASS color, position, depth, lens, time, motion, stride, offset, c0, c1, \
+    inv_far, layer_scale, lv, bins
 
-/* Sample k's bin (its pixel index, -1: none) and what it adds there: r0..r8 = w (r, g, b, 1,
+/* The sample at element k of the fields: its bin (its pixel index, -1: none) and what it adds there: r0..r8 = w (r, g, b, 1,
  * r / s, mx / s, my / s, fx, fy), w = 1 / SPP, (fx, fy) the centre's offset inside its bin.
  * Nine scalars (no private array), so that they stay in registers. */
 #define MIP_REC float *r0, float *r1, float *r2, float *r3, float *r4, float *r5, float *r6, \
@@ -132,16 +136,25 @@ __attribute__((always_inline)) inline void mip_bin_add(__global float *bins, con
 /* One work-item per sample, atomic adds (any device). */
 __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
 {
-    const int k = get_global_id(0);
-    if (k >= nsamples)
+    const int ks = get_global_id(0);
+    if (ks >= nsamples)
         return;
     MIP_REC_VARS;
-    const int idx = mip_record(k, MIP_BIN_PASS, MIP_REC_PASS);
+    const int idx = mip_record((ks / SPP) * stride + offset + ks % SPP, MIP_BIN_PASS,
+                               MIP_REC_PASS);
     if (idx >= 0)
         mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
 }
 
 #define ROW_MAX 512
+/* sample element k's record into slot j of the tiles' local arrays */
+#define MIP_RECORD_INTO(j, k) \
+    do { \
+        MIP_REC_VARS; \
+        ridx[j] = mip_record((k), MIP_BIN_PASS, MIP_REC_PASS); \
+        r0[j] = v0; r1[j] = v1; r2[j] = v2; r3[j] = v3; r4[j] = v4; \
+        r5[j] = v5; r6[j] = v6; r7[j] = v7; r8[j] = v8; \
+    } while (0)
 /* One work-item (and work-group) per owner tile of tile x tile frame pixels: the
  * host launches the k x k phases in turn with (k - 1) tile > 2 R - 1, R bounding how
  * far from its pixel a sample's bin lies (frame pixels), so no two work-items of a launch
@@ -164,19 +177,15 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
     const int row = (min(x0 + tile, width) - x0) * SPP;
     for (int y = y0; y < min(y0 + tile, height); ++y)
         for (int c = 0; c < row; c += ROW_MAX) {
-            const int first = (y * width + x0) * SPP + c, n = min(ROW_MAX, row - c);
-            for (int j = 0; j < n; ++j) {
-                MIP_REC_VARS;
-                ridx[j] = mip_record(first + j, MIP_BIN_PASS, MIP_REC_PASS);
-                r0[j] = v0;
-                r1[j] = v1;
-                r2[j] = v2;
-                r3[j] = v3;
-                r4[j] = v4;
-                r5[j] = v5;
-                r6[j] = v6;
-                r7[j] = v7;
-                r8[j] = v8;
+            const int n = min(ROW_MAX, row - c);
+            if (stride == SPP) {  /* a whole frame: the row's samples are contiguous */
+                const int first = (y * width + x0) * SPP + c;
+                for (int j = 0; j < n; ++j)
+                    MIP_RECORD_INTO(j, first + j);
+            } else {  /* a view: sample i of pixel p is element p stride + offset + i */
+                const int p0 = y * width + x0;
+                for (int j = 0; j < n; ++j)
+                    MIP_RECORD_INTO(j, (p0 + (c + j) / SPP) * stride + offset + (c + j) % SPP);
             }
             /* consecutive samples that share a bin (a pixel's samples, a coarse level's
              * neighbours) are summed in registers first: one add into the bin per run */

@@ -1,7 +1,7 @@
 """Views of a frame's samples (``DeviceSamples.view``): the checks, the refusal by passes that
 read whole frames, and the safeguard reading its halves in place where the method's passes
-take views (sweep's block sort, layered but its fixed-point plan): bit-identical to reading
-copies of the halves."""
+take views (sweep's block sort, layered but its fixed-point plan, splat's mip plan):
+bit-identical to reading copies of the halves."""
 from __future__ import annotations
 
 import numpy as np
@@ -52,23 +52,26 @@ def test_whole_frame_pipelines_refuse_a_view(device):
     s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
     info = buf.inspect()
     half = s.view(2, 0, info.__class__(**{**info.__dict__, "spp": 2}))
-    for method in ("splat", "box"):
-        pipe = make_pipeline(method, device.context, half.info, safeguard=False)
+    for method, knobs in (("splat", {"mip_radius": 0}), ("box", {})):  # splat: the paper's
+        pipe = make_pipeline(method, device.context, half.info, safeguard=False, **knobs)
         assert not pipe.sample_views
         with pytest.raises(ValueError, match="reads whole frames, not a view"):
             _image(device, pipe, half, buf)
 
 
+@pytest.mark.parametrize("method, knobs", [("sweep", {"sort": "block"}),
+                                           ("splat", {"mip_radius": 3.0}),
+                                           ("splat", {"mip_radius": 3.0, "scatter": "atomic"})])
 @pytest.mark.parametrize("spp", [4, 5])
-def test_sweep_block_reads_a_view_as_its_half(device, spp):
+def test_a_pass_reads_a_view_as_its_half(device, spp, method, knobs):
     buf = frame(np.random.default_rng(spp), h=13, w=11, s=spp)
     s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
     ha, _ = sg.halves(spp)
     for sl, offset in ((slice(0, ha), 0), (slice(ha, None), ha)):
         h = _half(buf, sl)
         try:
-            pipe = make_pipeline("sweep", device.context, h.inspect(), safeguard=False,
-                                 sort="block")
+            pipe = make_pipeline(method, device.context, h.inspect(), safeguard=False,
+                                 **knobs)
         except ValueError as e:  # a device whose local memory holds no block
             pytest.skip(str(e))
         assert pipe.sample_views
@@ -79,7 +82,7 @@ def test_sweep_block_reads_a_view_as_its_half(device, spp):
 
 
 @pytest.mark.parametrize("method, knobs", [("sweep", {"sort": "block"}), ("layered", {}),
-                                           ("layered", {"splat": "bilinear"})])
+                                           ("layered", {"splat": "bilinear"}), ("splat", {})])
 @pytest.mark.parametrize("spp", [4, 5])
 def test_safeguard_reads_the_halves_in_place_as_it_would_copies(device, spp, method, knobs):
     buf = frame(np.random.default_rng(10 + spp), h=12, w=15, s=spp)

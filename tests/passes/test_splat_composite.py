@@ -75,3 +75,29 @@ def test_uncovered_pixels_take_their_samples_mean(device, rng):
     assert_close(got[hole], color.mean(2)[hole], rtol=1e-5, what="holes")
     assert_close(got[~hole], run(device, zeros, direct, np.zeros((nl, 4)), pad, h, w,
                                  False)[~hole], rtol=0, atol=0, what="covered pixels")
+
+
+def test_uncovered_pixels_of_a_view_take_their_own_samples(device, rng):
+    """The fallback reads samples offset .. offset + spp - 1 of a wider buffer (a half of a
+    frame read in place): the same image as from a copy of those samples."""
+    h, w, pad, nl, stride = 5, 6, 1, 1, 5
+    direct = rng.uniform(0.2, 1.5, (nl, h + 2 * pad, w + 2 * pad, 4)).astype(np.float32)
+    direct[:, pad:pad + 2, pad:pad + 3] = 0.0  # uncovered pixels
+    color = rng.uniform(0.0, 2.0, (h, w, stride, 3)).astype(np.float32)
+    ctx, q = device.context, device.queue
+    ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+    planes = [cl.Buffer(ctx, ro, hostbuf=a) for a in (np.zeros_like(direct), direct,
+                                                      np.zeros((nl, 4), np.float32))]
+    wide = cl.Buffer(ctx, ro, hostbuf=color)
+    comp = SplatComposite(ctx, nl, False)
+    for offset, n in ((0, 2), (2, 3)):
+        out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, h * w * 12)
+        comp(q, *planes, w, h, pad, out, color=wide, spp=n, stride=stride, offset=offset)
+        got = np.empty((h, w, 3), np.float32)
+        cl.enqueue_copy(q, got, out)
+        q.finish()
+        want = run(device, np.zeros_like(direct), direct, np.zeros((nl, 4)), pad, h, w, False,
+                   color=np.ascontiguousarray(color[:, :, offset:offset + n]))
+        assert np.array_equal(got, want), (offset, n)
+        assert_close(got[:2, :3], color[:2, :3, offset:offset + n].mean(2), rtol=1e-5,
+                     what="uncovered pixels")

@@ -24,13 +24,17 @@ class SplatComposite:
 
     def __call__(self, queue, b: cl.Buffer, direct: cl.Buffer, ring: cl.Buffer, width: int,
                  height: int, pad: int, out: cl.Buffer, wait_for=None,
-                 color: cl.Buffer | None = None, spp: int = 0) -> cl.Event:
+                 color: cl.Buffer | None = None, spp: int = 0, stride: int | None = None,
+                 offset: int = 0) -> cl.Event:
         """``color`` and ``spp``: the frame's samples, whose per-pixel mean fills a pixel no
-        layer covers (without them such a pixel is 0)."""
+        layer covers (without them such a pixel is 0); ``stride`` and ``offset``: where they
+        are in ``color`` (default a whole frame: ``spp`` per pixel from 0; a view's
+        ``DeviceSamples.strided``)."""
         if color is None:
             color, spp = b, 0
+        stride = spp if stride is None else stride
         self.kernel.set_args(b, direct, ring, np.int32(width), np.int32(height), np.int32(pad),
                              np.int32(width + 2 * pad), np.int32(height + 2 * pad), color,
-                             np.int32(spp), out)
+                             np.int32(spp), np.int32(stride), np.int32(offset), out)
         g, loc = self.local.for_range(width, height)
         return cl.enqueue_nd_range_kernel(queue, self.kernel, g, loc, wait_for=wait_for)

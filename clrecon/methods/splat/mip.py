@@ -138,9 +138,12 @@ class MipSplat:
             bins: cl.Buffer, wait_for=None) -> cl.Event:
         w, h, spp = samples.width, samples.height, samples.spp
         c0, c1 = samples.coc
-        args = [samples["color"], samples["position"], samples["depth"], samples["lens"],
-                samples["time"], samples["motion"], np.float32(c0), np.float32(c1),
-                np.float32(inv_far), np.float32(layer_scale), self.levels, bins]
+        # a view of a frame (the safeguard's halves) is read in place: samples.strided()
+        _, stride, offset = samples.strided("color")
+        args = [samples.strided(f)[0] for f in ("color", "position", "depth", "lens", "time",
+                                                 "motion")]
+        args += [np.int32(stride), np.int32(offset), np.float32(c0), np.float32(c1),
+                 np.float32(inv_far), np.float32(layer_scale), self.levels, bins]
         self.events = []
         if self.scatter == "atomic":
             n = w * h * spp

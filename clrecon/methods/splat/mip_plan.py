@@ -79,9 +79,11 @@ class MipPlan:
 
         def composite(queue, f, wait):
             b = f.buffers
+            color, stride, offset = f.samples.strided("color")
             return [("splat_composite", self.composite(
                 queue, b["mip_image"], b["mip_image"], b["ring"], f.width, f.height,
-                geo.pad, b["out"], wait, color=b["color"], spp=f.spp))]
+                geo.pad, b["out"], wait, color=color, spp=f.spp, stride=stride,
+                offset=offset))]
 
         steps = [Step("clear", (), ("mip_image", "mip_bins"), clear),
                  Step("bin", tuple(FIELDS), ("mip_bins",), bin_),
@@ -90,5 +92,8 @@ class MipPlan:
             steps.append(Step("upsample", ("mip_image",), ("mip_image",), upsample))
         steps.append(Step("splat_composite", ("mip_image", "color"), ("out",), composite))
         bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
+        # the bin pass and the composite read their samples through strided(): a view of a
+        # frame (one half, for the safeguard) is read in place
+        self.sample_views = True
         self.set_plan(Plan("splat", "splat", tuple(FIELDS), tuple(steps), temps,
                            tuple(bounds)))
