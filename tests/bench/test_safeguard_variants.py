@@ -1,0 +1,69 @@
+"""The safeguard-variants script (tools/safeguard_variants.py): its ``shipped`` estimator is
+the safeguard's NumPy reference, each variant moves only what it names, and one tiny scene
+end to end (where the script checks ``shipped`` against the device's own image)."""
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clrecon.methods import safeguard as sg
+from clrecon.scenes import render
+
+_PATH = Path(__file__).resolve().parents[2] / "tools" / "safeguard_variants.py"
+_spec = importlib.util.spec_from_file_location("safeguard_variants", _PATH)
+sv = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(sv)
+
+
+def _halves(rng, h=11, w=13, s=8):
+    color = rng.exponential(1.0, (h, w, s, 3))
+    box = color.mean(2)
+    # a method's halves: the box images smoothed, with a bias in one corner
+    ha = s // 2
+    ma, mb = (color[:, :, sl].mean(2) * 0.7 + 0.3 * box.mean((0, 1)) for sl in
+              (slice(0, ha), slice(ha, None)))
+    ma[:4, :4] += 0.5  # a coherent bias
+    mb[:4, :4] += 0.5
+    ma[7, 8] += 20.0  # and one pixel's
+    mb[7, 8] += 20.0
+    return color, ma, mb
+
+
+@pytest.mark.parametrize("s", [3, 8])
+def test_shipped_is_the_safeguards_reference(rng, s):
+    color, ma, mb = _halves(rng, s=s)
+    want, _ = sg.reference(color, ma=ma, mb=mb)
+    np.testing.assert_allclose(sv.blend(color, ma, mb, "shipped"), want, rtol=1e-12, atol=0)
+
+
+def test_variants_move_only_what_they_name(rng):
+    color, ma, mb = _halves(rng, s=3)
+    shipped = sv.blend(color, ma, mb, "shipped")
+    # below 4 spp there are no quarters: strat is the shipped estimator
+    np.testing.assert_array_equal(sv.blend(color, ma, mb, "strat"), shipped)
+    color, ma, mb = _halves(rng, s=8)
+    shipped = sv.blend(color, ma, mb, "shipped")
+    box = color.mean(2)
+    for v in sv.VARIANTS[1:]:
+        got = sv.blend(color, ma, mb, v)
+        assert got.shape == shipped.shape and np.isfinite(got).all(), v
+        assert not np.array_equal(got, shipped), v
+    # a larger bias estimate (pixel 3sd only adds a bound) never moves a pixel away from box
+    m = (ma + mb) / 2
+    w_ship = (shipped - box)[..., 0] / (m - box)[..., 0]
+    w_pix = (sv.blend(color, ma, mb, "pixel 3sd") - box)[..., 0] / (m - box)[..., 0]
+    assert np.all(w_pix <= w_ship + 1e-12)
+
+
+def test_tiny_scene_end_to_end(monkeypatch, device):
+    monkeypatch.setattr(sv, "render_reference",
+                        lambda scene, w, h: render.render_reference(scene, w, h, spp=64))
+    out = sv.measure("fence", 24, 8, device)
+    assert set(out) == {"box", *sv.METHODS}, out
+    for method in sv.METHODS:
+        assert set(out[method]) == set(sv.VARIANTS)
+        assert all(math.isfinite(v) for v in out[method].values()), out
