@@ -12,6 +12,8 @@ the device's own image to 0.02 dB). A variant changes one thing:
   ``r = mean7(v_half) / mean7(v_quarter)`` (clipped to [0, 1/2]): how a half's variance
   compares with a quarter's tells how the renderer's samples converge, where independent
   halves assume ``1/spp`` (needs >= 4 spp; stratified samples converge faster);
+  ``strat frame``: the same with one ratio for the frame, ``mean(v_half) / mean(v_quarter)``
+  over every pixel;
 * ``se7 1`` / ``se7 2``: the 7x7 mean of ``e`` only where it stands 1 / 2 standard errors
   above zero, as the 3x3 one does;
 * ``shrink7``: the 7x7 mean shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)``.
@@ -38,7 +40,7 @@ from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_reference, render_samples
 
-VARIANTS = ("shipped", "pixel 3sd", "strat", "se7 1", "se7 2", "shrink7")
+VARIANTS = ("shipped", "pixel 3sd", "strat", "strat frame", "se7 1", "se7 2", "shrink7")
 METHODS = ("sweep", "layered", "splat")
 
 
@@ -62,14 +64,16 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np
     k = ha * hb / (s * s)
     vb = k * _lum2(sa / ha - sb / hb)
     vm = k * _lum2(ma - mb)
-    if variant == "strat" and s >= 4:
+    if variant in ("strat", "strat frame") and s >= 4:
         qa, qb = ha // 2, hb // 2
         q = [c[:, :, :qa].mean(2), c[:, :, qa:ha].mean(2), c[:, :, ha:ha + qb].mean(2),
              c[:, :, ha + qb:].mean(2)]
         v_quarter = 0.25 * (_lum2(q[0] - q[1]) + _lum2(q[2] - q[3]))
         v_half = 0.5 * _lum2(sa / ha - sb / hb)
-        r = np.clip(_window_mean(v_half, 3)
-                    / np.maximum(_window_mean(v_quarter, 3), np.finfo(float).tiny), 0.0, 0.5)
+        tiny = np.finfo(float).tiny
+        r = np.clip(v_half.mean() / max(v_quarter.mean(), tiny) if variant == "strat frame"
+                    else _window_mean(v_half, 3) / np.maximum(_window_mean(v_quarter, 3), tiny),
+                    0.0, 0.5)
         vb, vm = vb * 2 * r, vm * 2 * r
     e = _lum2(m - box) - vm - vb
     mu3, se3 = _se(e, 1)

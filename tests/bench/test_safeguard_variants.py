@@ -49,6 +49,8 @@ def test_variants_move_only_what_they_name(rng):
     shipped = sv.blend(color, ma, mb, "shipped")
     box = color.mean(2)
     for v in sv.VARIANTS[1:]:
+        if v.startswith("strat"):  # iid samples: a half's variance is half a quarter's
+            continue
         got = sv.blend(color, ma, mb, v)
         assert got.shape == shipped.shape and np.isfinite(got).all(), v
         assert not np.array_equal(got, shipped), v
@@ -67,3 +69,19 @@ def test_tiny_scene_end_to_end(monkeypatch, device):
     for method in sv.METHODS:
         assert set(out[method]) == set(sv.VARIANTS)
         assert all(math.isfinite(v) for v in out[method].values()), out
+
+
+@pytest.mark.parametrize("variant", ["strat", "strat frame"])
+def test_strat_trusts_box_more_where_halves_agree_better_than_quarters(rng, variant):
+    """Each half's second quarter mirrors its first about a value of its own: the halves'
+    means differ a little while the quarters' differ a lot, so the measured convergence is
+    faster than independent samples' (r < 1/2), box's variance estimate shrinks and every
+    pixel moves toward box."""
+    color, ma, mb = _halves(rng, s=8)
+    mu = color.mean(2, keepdims=True)
+    color[:, :, 2:4] = 2 * mu - color[:, :, 0:2]
+    color[:, :, 6:8] = 2 * (mu + rng.normal(0, 0.05, mu.shape)) - color[:, :, 4:6]
+    box = color.mean(2)
+    d_strat = np.abs(sv.blend(color, ma, mb, variant) - box)
+    d_ship = np.abs(sv.blend(color, ma, mb, "shipped") - box)
+    assert np.all(d_strat <= d_ship + 1e-12) and np.any(d_strat < 0.5 * d_ship)
