@@ -78,9 +78,9 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np
     e = _lum2(m - box) - vm - vb
     mu3, se3 = _se(e, 1)
     mu7, se7 = _se(e, 3)
+    rel = np.divide(se7, mu7, out=np.full_like(mu7, np.inf), where=mu7 > 0)  # se7 / mu7
     t7 = {"se7 1": mu7 - se7, "se7 2": mu7 - 2 * se7,
-          "shrink7": np.where(mu7 > 0, mu7 * np.maximum(
-              0.0, 1.0 - se7 ** 2 / np.maximum(mu7, np.finfo(float).tiny) ** 2), 0.0)
+          "shrink7": np.where(mu7 > 0, mu7 * np.maximum(0.0, 1.0 - rel * rel), 0.0)
           }.get(variant, mu7)
     b2 = np.maximum(0.0, np.maximum(t7, mu3 - 2.0 * se3))
     vm3 = _window_mean(vm, 1)
