@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 import pytest
+from conftest import assert_close
 from layered_frames import frame
 
 from clrecon.api import make_pipeline
@@ -78,7 +79,10 @@ def test_a_pass_reads_a_view_as_its_half(device, spp, method, knobs):
         got = _image(device, pipe, s.view(h.spp, offset, h.inspect()), buf)
         want = _image(device, pipe, DeviceSamples.upload(device.queue, h, info=h.inspect()),
                       buf)
-        assert np.array_equal(got, want)
+        if knobs.get("scatter") == "atomic":  # float atomics add in the device's order
+            assert_close(got, want, rtol=1e-5, atol=1e-6, what=f"{method} {knobs}")
+        else:
+            assert np.array_equal(got, want)
 
 
 @pytest.mark.parametrize("method, knobs", [("sweep", {"sort": "block"}), ("layered", {}),
