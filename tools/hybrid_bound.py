@@ -29,8 +29,8 @@ from datetime import datetime, timezone
 import numpy as np
 
 import clrecon
-from clrecon.bench.scripts import emit_page
 from clrecon.bench.options import parse_size
+from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.io.image import tonemap_srgb
 from clrecon.metrics import psnr

@@ -57,8 +57,9 @@ built-in scenes at 4-16 spp (512x512) and 32-64 spp (256x256), the halves' mean 
 
 Cost: the method runs on both halves (layered's statistics and partitions on the frame),
 plus one split copy of the fields (none where the method's passes read each half in place,
-``Pipeline.sample_views``: sweep's block sort, layered, splat's mip plan) and three cheap passes (the statistics, and
-the windowed means in two separable passes: row segments, then columns and the blend).
+``Pipeline.sample_views``: sweep's block sort, layered, splat's mip plan) and three cheap
+passes (the statistics, and the windowed means in two separable passes: row segments, then
+columns and the blend).
 ``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports);
 ``estimate_error=True`` also returns the error image.
 """

@@ -8,7 +8,6 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
-
 from types import SimpleNamespace
 
 import conftest
