@@ -133,6 +133,14 @@ __attribute__((always_inline)) inline void mip_bin_add(__global float *bins, con
     mip_add1(b + 9, v8, atomic);
 }
 
+/* The element of the fields that holds sample ks (ks = pixel SPP + i) of a frame with `stride`
+ * samples per pixel in the buffers from `offset` on. */
+__attribute__((always_inline)) inline int mip_element(const int ks, const int stride,
+                                                      const int offset)
+{
+    return (ks / SPP) * stride + offset + ks % SPP;
+}
+
 /* One work-item per sample, atomic adds (any device). */
 __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
 {
@@ -140,8 +148,7 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
     if (ks >= nsamples)
         return;
     MIP_REC_VARS;
-    const int idx = mip_record((ks / SPP) * stride + offset + ks % SPP, MIP_BIN_PASS,
-                               MIP_REC_PASS);
+    const int idx = mip_record(mip_element(ks, stride, offset), MIP_BIN_PASS, MIP_REC_PASS);
     if (idx >= 0)
         mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
 }
@@ -177,15 +184,13 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
     const int row = (min(x0 + tile, width) - x0) * SPP;
     for (int y = y0; y < min(y0 + tile, height); ++y)
         for (int c = 0; c < row; c += ROW_MAX) {
-            const int n = min(ROW_MAX, row - c);
+            const int first = (y * width + x0) * SPP + c, n = min(ROW_MAX, row - c);
             if (stride == SPP) {  /* a whole frame: the row's samples are contiguous */
-                const int first = (y * width + x0) * SPP + c;
                 for (int j = 0; j < n; ++j)
                     MIP_RECORD_INTO(j, first + j);
-            } else {  /* a view: sample i of pixel p is element p stride + offset + i */
-                const int p0 = y * width + x0;
+            } else {  /* a view of one (kept apart: the mapping turns the loads to gathers) */
                 for (int j = 0; j < n; ++j)
-                    MIP_RECORD_INTO(j, (p0 + (c + j) / SPP) * stride + offset + (c + j) % SPP);
+                    MIP_RECORD_INTO(j, mip_element(first + j, stride, offset));
             }
             /* consecutive samples that share a bin (a pixel's samples, a coarse level's
              * neighbours) are summed in registers first: one add into the bin per run */
