@@ -288,6 +288,23 @@ inline sample_t trace(__global const float *objs, int nobj, __private const pixe
     return s;
 }
 
+/* Intel's CPU compiler (pip's intel-opencl-rt 2026.2.0, driver 2026.22.10) miscompiles both
+ * kernels below when its vectorizer packs work-items into SIMD lanes: the float3 colours carried
+ * through the sample loop come back shuffled between lanes, and lanes 6-7 of an 8-wide group
+ * read past the packed values (garbage such as -1e30, different from run to run). Nothing
+ * here reads an unset value or relies on undefined behaviour (PoCL, Oclgrind and the NumPy
+ * tracer agree); -cl-opt-disable builds it right, and so does the hint below, which keeps
+ * one work-item per lane for these kernels alone. Passing the background as float4 instead
+ * only moved the fault to hit pixels. The hint cost no speed where measured (fence 160x120
+ * at 32 spp: 84 ms, the wrong vectorised build 152 ms). tests/unit/test_trusted_reference.py
+ * checks this kernel against the NumPy tracer on every device. */
+#ifdef cl_intel_vec_len_hint
+#define REFERENCE_VEC_HINT __attribute__((intel_vec_len_hint(1)))
+#else
+#define REFERENCE_VEC_HINT
+#endif
+
+REFERENCE_VEC_HINT
 __kernel void raytrace_samples(__global const float *objs, __global const float4 *bounds,
                                const int nobj, const int width, const int height,
                                const int spp, const int row0, const uint seed, CAMERA_ARGS,
@@ -304,22 +321,6 @@ __kernel void raytrace_samples(__global const float *objs, __global const float4
         store_sample(&s, base + i, SAMPLE_FIELDS_PASS);
     }
 }
-
-/* Intel's CPU compiler (pip's intel-opencl-rt 2026.2.0, driver 2026.22.10) miscompiles this
- * kernel when its vectorizer packs work-items into SIMD lanes: the float3 colours carried
- * through the sample loop come back shuffled between lanes, and lanes 6-7 of an 8-wide group
- * read past the packed values (garbage such as -1e30, different from run to run). Nothing
- * here reads an unset value or relies on undefined behaviour (PoCL, Oclgrind and the NumPy
- * tracer agree); -cl-opt-disable builds it right, and so does the hint below, which keeps
- * one work-item per lane for this kernel alone. Passing the background as float4 instead
- * only moved the fault to hit pixels. The hint cost no speed where measured (fence 160x120
- * at 32 spp: 84 ms, the wrong vectorised build 152 ms). tests/unit/test_trusted_reference.py
- * checks this kernel against the NumPy tracer on every device. */
-#ifdef cl_intel_vec_len_hint
-#define REFERENCE_VEC_HINT __attribute__((intel_vec_len_hint(1)))
-#else
-#define REFERENCE_VEC_HINT
-#endif
 
 REFERENCE_VEC_HINT
 __kernel void raytrace_reference(__global const float *objs, __global const float4 *bounds,
