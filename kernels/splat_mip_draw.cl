@@ -35,41 +35,6 @@ __attribute__((always_inline)) inline void mip_add4(__global float *dst, const f
     }
 }
 
-/* Draw a disc (rho >= 3/2, no motion) with plain adds, row by row: each row's outer chord
- * in one loop, four pixels at a time (inside the inner chord the antialiased disc is 1, so
- * the one expression serves the rim and the inside; mip_row's split into runs is slower
- * here: PoCL ran the draw pass 1.4x faster this way on deep 1280x720). */
-__attribute__((always_inline)) inline void mip_disc_plain(const mip_psf_t *p, const float4 wv,
-                                                         __global float *base, const int nw,
-                                                         const int pad)
-{
-    const float ro = p->rho + 0.5f;
-    for (int y = p->y0; y <= p->y1; ++y) {
-        const float dy = (float)y + 0.5f - p->c.y, dy2 = dy * dy;
-        if (dy2 > ro * ro)
-            continue;
-        /* the row's pixels as mip_row has them: the outer chord and one pixel of slack */
-        const float h = sqrt(ro * ro - dy2);
-        const int xa = max(p->x0, (int)floor(p->c.x - h - 0.5f));
-        const int xb = min(p->x1, (int)floor(p->c.x + h - 0.5f) + 1);
-        __global float4 *row = (__global float4 *)(base + (size_t)(y + pad) * nw * 4) + pad;
-        int x = xa;
-        for (; x + 3 <= xb; x += 4) {
-            const float4 dx = ((float4)((float)x, (float)x + 1.0f, (float)x + 2.0f,
-                                        (float)x + 3.0f) + 0.5f) - p->c.x;
-            const float4 v = clamp(ro - sqrt(dx * dx + dy2), 0.0f, 1.0f);
-            row[x] += v.x * wv;
-            row[x + 1] += v.y * wv;
-            row[x + 2] += v.z * wv;
-            row[x + 3] += v.w * wv;
-        }
-        for (; x <= xb; ++x) {
-            const float dx = (float)x + 0.5f - p->c.x;
-            row[x] += clamp(ro - sqrt(dx * dx + dy2), 0.0f, 1.0f) * wv;
-        }
-    }
-}
-
 /* The swept disc (len >= 1/2) at four pixels of a row: mip_psf, lane by lane (d.x of each
  * lane in dx, the row's d.y in dy). */
 __attribute__((always_inline)) inline float4 mip_swept4(const mip_psf_t *p, const float4 dx,
@@ -86,24 +51,47 @@ __attribute__((always_inline)) inline float4 mip_swept4(const mip_psf_t *p, cons
     return v;
 }
 
-/* Row y's pixels [xa, xb] of a swept disc, four at a time: the sum of its values (add == 0)
- * or their adds of v wv into row (add == 1). The swept disc's values vary inside its rows
- * (only the pixels whose discs hold the whole segment share one, and a segment longer than
- * the disc's diameter leaves none), so every pixel is evaluated: in lanes, as
- * mip_disc_plain does, the pass ran 2.1x faster than pixel by pixel (deep 1280x720 8 spp,
- * PoCL; swept discs were 5% of the bins and half of the draw's time). */
-__attribute__((always_inline)) inline float mip_swept_row(const mip_psf_t *p, const int y,
-                                                         const int xa, const int xb,
-                                                         const float4 wv,
-                                                         __global float4 *row, const int add)
+/* A PSF's shape (mip_psf): a small disc's pixel overlap, the antialiased disc, the swept disc */
+#define MIP_SMALL 0
+#define MIP_DISC 1
+#define MIP_SWEPT 2
+
+/* mip_psf at four pixels of a row, lane by lane (each lane's d.x in dx, the row's d.y in dy):
+ * the antialiased disc, a small disc's pixel overlap or the swept disc. */
+__attribute__((always_inline)) inline float4 mip_psf4(const mip_psf_t *p, const float4 dx,
+                                                     const float dy, const int shape)
+{
+    if (shape == MIP_SWEPT)
+        return mip_swept4(p, dx, dy);
+    if (shape == MIP_DISC)
+        return clamp(p->rho + 0.5f - sqrt(dx * dx + dy * dy), 0.0f, 1.0f);
+    const float a = 0.886227f * p->rho;
+    const float4 ox = fmax(fmin(dx + 0.5f, a) - fmax(dx - 0.5f, -a), 0.0f);
+    const float oy = fmax(fmin(dy + 0.5f, a) - fmax(dy - 0.5f, -a), 0.0f);
+    return ox * oy;
+}
+
+/* Row y of p's PSF over its whole box [x0, x1], four pixels at a time: the sum of its values
+ * (add == 0) or their adds of v wv into row (add == 1; plain adds). Every row of a bin runs
+ * the same count of steps, the pixels outside the PSF adding 0: the branches stay
+ * predictable. Clipping each row to its chord (mip_row) did less arithmetic and took longer:
+ * the draw pass of deep 1280x720 at 8 spp (PoCL, Xeon, both of the safeguard's halves)
+ * 338-358 ms with the chords and the swept discs pixel by pixel, 273-293 ms with the swept
+ * discs in lanes, and about 200 ms over the boxes. */
+__attribute__((always_inline)) inline float mip_box_row(const mip_psf_t *p, const int y,
+                                                       const float4 wv,
+                                                       __global float4 *row, const int add,
+                                                       const int shape)
 {
     const float dy = (float)y + 0.5f - p->c.y;
+    if (shape == MIP_DISC && dy * dy > (p->rho + 0.5f) * (p->rho + 0.5f))
+        return 0.0f;  /* the row misses the disc */
     float4 acc = (float4)(0.0f);
-    int x = xa;
-    for (; x + 3 <= xb; x += 4) {
+    int x = p->x0;
+    for (; x + 3 <= p->x1; x += 4) {
         const float4 dx = ((float4)((float)x, (float)x + 1.0f, (float)x + 2.0f,
                                     (float)x + 3.0f) + 0.5f) - p->c.x;
-        const float4 v = mip_swept4(p, dx, dy);
+        const float4 v = mip_psf4(p, dx, dy, shape);
         if (add) {
             row[x] += v.x * wv;
             row[x + 1] += v.y * wv;
@@ -114,14 +102,36 @@ __attribute__((always_inline)) inline float mip_swept_row(const mip_psf_t *p, co
         }
     }
     float sum = (acc.x + acc.y) + (acc.z + acc.w);
-    for (; x <= xb; ++x) {
-        const float v = mip_swept4(p, (float4)((float)x + 0.5f - p->c.x), dy).x;
+    for (; x <= p->x1; ++x) {
+        const float v = mip_psf4(p, (float4)((float)x + 0.5f - p->c.x), dy, shape).x;
         if (add)
             row[x] += v * wv;
         else
             sum += v;
     }
     return sum;
+}
+
+/* p's PSF of the given shape (a constant at each call: one specialised loop a shape), normalised
+ * to unit sum (its analytic sum, or its pixels' where none is set), times the bin's
+ * (rgb w, w), into its level image with plain adds; a PSF whose pixels sum to 0 adds the
+ * bin at its own pixel. */
+__attribute__((always_inline)) inline void mip_draw_box(const mip_psf_t *p, __global float *img,
+                                                       __global float *base, const int4 g,
+                                                       const int shape)
+{
+    float sum = p->sum;
+    if (!(sum > 0.0f))
+        for (int y = p->y0; y <= p->y1; ++y)
+            sum += mip_box_row(p, y, (float4)(0.0f), 0, 0, shape);
+    if (!(sum > 0.0f)) {
+        mip_add4(img + p->bi * 4, p->b0, 0);
+        return;
+    }
+    const float4 wv = p->b0 * (1.0f / sum);
+    for (int y = p->y0; y <= p->y1; ++y)
+        (void)mip_box_row(p, y, wv, (__global float4 *)(base + (size_t)(y + g.w) * g.y * 4)
+                          + g.w, 1, shape);
 }
 
 /* Draw bin (qx, qy) of `layer` at level l into img, one work-item alone. */
@@ -135,15 +145,26 @@ __attribute__((always_inline)) inline void mip_draw_one(const int l, const int l
     mip_psf_t p;
     if (!mip_params(l, layer, qx, qy, bins, lv, &p))
         return;
+    const int4 g = lv[l];
+    __global float *base = img + ((size_t)g.x + (size_t)layer * g.z * g.y) * 4;
+    float sum = p.sum;
+    if (!atomic) {  /* plain adds: the PSF's box, row by row (mip_box_row) */
+        if (p.point) {
+            mip_add4(img + p.bi * 4, p.b0, 0);
+            return;
+        }
+        if (p.len >= 0.5f)
+            mip_draw_box(&p, img, base, g, MIP_SWEPT);
+        else if (p.rho >= 1.5f)
+            mip_draw_box(&p, img, base, g, MIP_DISC);
+        else
+            mip_draw_box(&p, img, base, g, MIP_SMALL);
+        return;
+    }
+    /* atomic adds: each row's pixels that the PSF may cover, its constant inside as a run */
     int xa, xb, ia, ib;
     float vin;
-    float sum = p.sum;
-    if (!p.point && !(sum > 0.0f) && p.len >= 0.5f && !atomic) {
-        for (int y = p.y0; y <= p.y1; ++y) {
-            mip_row(&p, y, &xa, &xb, &ia, &ib, &vin);
-            sum += mip_swept_row(&p, y, xa, xb, (float4)(0.0f), 0, 0);
-        }
-    } else if (!p.point && !(sum > 0.0f)) {
+    if (!p.point && !(sum > 0.0f)) {
         for (int y = p.y0; y <= p.y1; ++y) {
             mip_row(&p, y, &xa, &xb, &ia, &ib, &vin);
             for (int x = xa; x < ia; ++x)
@@ -154,45 +175,25 @@ __attribute__((always_inline)) inline void mip_draw_one(const int l, const int l
         }
     }
     if (p.point || !(sum > 0.0f)) {
-        mip_add4(img + p.bi * 4, p.b0, atomic);
+        mip_add4(img + p.bi * 4, p.b0, 1);
         return;
     }
     const float4 wv = p.b0 * (1.0f / sum);
-    const int4 g = lv[l];
-    __global float *base = img + ((size_t)g.x + (size_t)layer * g.z * g.y) * 4;
-    if (!atomic && p.len < 0.5f && p.rho >= 1.5f) {
-        mip_disc_plain(&p, wv, base, g.y, g.w);
-        return;
-    }
-    if (!atomic && p.len >= 0.5f) {
-        for (int y = p.y0; y <= p.y1; ++y) {
-            mip_row(&p, y, &xa, &xb, &ia, &ib, &vin);
-            __global float4 *row = (__global float4 *)(base + (size_t)(y + g.w) * g.y * 4) + g.w;
-            (void)mip_swept_row(&p, y, xa, xb, wv, row, 1);
-        }
-        return;
-    }
     for (int y = p.y0; y <= p.y1; ++y) {
         __global float *row = base + (size_t)(y + g.w) * g.y * 4;
         mip_row(&p, y, &xa, &xb, &ia, &ib, &vin);
         for (int x = xa; x < ia; ++x) {
             const float v = mip_psf_at(&p, x, y);
             if (v > 0.0f)
-                mip_add4(row + (size_t)(x + g.w) * 4, v * wv, atomic);
+                mip_add4(row + (size_t)(x + g.w) * 4, v * wv, 1);
         }
         const float4 wi = vin * wv;
-        if (atomic) {
-            for (int x = ia; x <= ib; ++x)
-                mip_add4(row + (size_t)(x + g.w) * 4, wi, 1);
-        } else {  /* a run of plain adds, which vectorises */
-            __global float4 *run = (__global float4 *)row + g.w;
-            for (int x = ia; x <= ib; ++x)
-                run[x] += wi;
-        }
+        for (int x = ia; x <= ib; ++x)
+            mip_add4(row + (size_t)(x + g.w) * 4, wi, 1);
         for (int x = max(ib + 1, ia); x <= xb; ++x) {
             const float v = mip_psf_at(&p, x, y);
             if (v > 0.0f)
-                mip_add4(row + (size_t)(x + g.w) * 4, v * wv, atomic);
+                mip_add4(row + (size_t)(x + g.w) * 4, v * wv, 1);
         }
     }
 }
