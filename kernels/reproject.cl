@@ -60,6 +60,12 @@
 #ifndef LOCAL_ACC
 #define LOCAL_ACC 0   /* the host's word that 16 DMAX^2 bytes of local memory fit */
 #endif
+#ifndef JOINT_HA
+#define JOINT_HA 0    /* > 0: both of the safeguard's halves in one pass (see reproject) */
+#endif
+#if JOINT_HA && FIXED
+#error "JOINT_HA: the fixed-point accumulation is for one grid"
+#endif
 #if FIXED && !CLRECON_HAS_FIXED
 #error "FIXED needs cl_khr_int64_base_atomics"
 #endif
@@ -115,6 +121,13 @@ inline void splat(__global ACC *grid, int dim, int gx, int gy, float wt, float3 
  * order: the same sums. */
 #define OWN_LOCAL (LOCAL_ACC && WG_X == 1 && !FIXED && !SPLAT_BILINEAR && VW > 1)
 
+/* the grid that sample i of a pixel adds to: with JOINT_HA, half A's (grids) or B's */
+#if JOINT_HA
+#define HALF_ACC(i) ((i) >= JOINT_HA ? acc_b : acc)
+#else
+#define HALF_ACC(i) acc
+#endif
+
 #if NBUCKETS > 256
 #error "reproject_buckets stores a bucket in a uchar: NBUCKETS <= 256"
 #endif
@@ -143,6 +156,9 @@ void reproject(__global const float *color, __global const float *position,
                __global const float *time, const int sample_stride, const int sample_offset,
                const int width, const int height,
                const int ntx, __global const float *params, __global float *grids
+#if JOINT_HA
+               , __global float *grids_b
+#endif
 #if FIXED
                , __global long *fixed, __global const uint *bound
 #endif
@@ -150,6 +166,9 @@ void reproject(__global const float *color, __global const float *position,
 {
 #if OWN_LOCAL
     __local float4 own_acc[DMAX * DMAX];
+#if JOINT_HA
+    __local float4 own_acc_b[DMAX * DMAX];
+#endif
 #endif
     const int slot = get_group_id(0), lid = get_local_id(0);
     const int t = slot / MAXP;
@@ -174,15 +193,26 @@ void reproject(__global const float *color, __global const float *position,
     const float4 sc = (float4)(1.0f);
     __global float *acc = grid;
 #endif
+#if JOINT_HA
+    __global float *grid_b = grids_b + (size_t)slot * NCH * DMAX * DMAX, *acc_b = grid_b;
+#endif
 #if OWN_LOCAL
     for (int k = 0; k < dim * dim; ++k) {
         own_acc[k] = (float4)(0.0f);
         acc[4 * DMAX * DMAX + k] = 0.0f;
+#if JOINT_HA
+        own_acc_b[k] = (float4)(0.0f);
+        acc_b[4 * DMAX * DMAX + k] = 0.0f;
+#endif
     }
 #else
     for (int c = 0; c < NCH; ++c)
-        for (int k = lid; k < dim * dim; k += WG_X)
+        for (int k = lid; k < dim * dim; k += WG_X) {
             acc[c * DMAX * DMAX + k] = 0;
+#if JOINT_HA
+            acc_b[c * DMAX * DMAX + k] = 0;
+#endif
+        }
 #endif
     barrier(CLK_GLOBAL_MEM_FENCE);
     /* SUBSAMPLE (b_max, 1: off): a slot on a grid of spacing s > 1 gathers one pixel (all
@@ -232,14 +262,32 @@ void reproject(__global const float *color, __global const float *position,
                  * skip dropped lanes without a branch each (the same adds in the same order
                  * per channel as one loop over the lanes; 1.05x faster) */
                 const intv own = islessequal(bv, (floatv)(hi));
-                uint mo = lane_bits(ok & own), mb = lane_bits(ok & ~own);
+                const uint mo_all = lane_bits(ok & own), mb_all = lane_bits(ok & ~own);
+#if JOINT_HA
+                /* half A's lanes (samples below JOINT_HA) into grids, then half B's into
+                 * grids_b: each grid gets its half's adds in the order its own pass makes */
+                const uint la = (1u << clamp(JOINT_HA - i0, 0, VW)) - 1u;
+                for (int h = 0; h < 2; ++h) {
+                    uint mo = mo_all & (h ? ~la : la), mb = mb_all & (h ? ~la : la);
+                    __global ACC *hacc = h ? acc_b : acc;
+#if OWN_LOCAL
+                    __local float4 *hown = h ? own_acc_b : own_acc;
+#endif
+#else
+                {
+                    uint mo = mo_all, mb = mb_all;
+                    __global ACC *hacc = acc;
+#if OWN_LOCAL
+                    __local float4 *hown = own_acc;
+#endif
+#endif
                 while (mo) {
                     const int j = 31 - clz(mo & (0u - mo));
                     mo &= mo - 1u;
 #if OWN_LOCAL
-                    own_acc[ia[j]] += (float4)(vload3(base + i0 + j, color), 1.0f);
+                    hown[ia[j]] += (float4)(vload3(base + i0 + j, color), 1.0f);
 #else
-                    __global ACC *cell = acc + ia[j];
+                    __global ACC *cell = hacc + ia[j];
                     const float3 c = vload3(base + i0 + j, color);
                     GRID_ADD(cell, c.x, sc.x);
                     GRID_ADD(cell + DMAX * DMAX, c.y, sc.y);
@@ -250,7 +298,8 @@ void reproject(__global const float *color, __global const float *position,
                 while (mb) {
                     const int j = 31 - clz(mb & (0u - mb));
                     mb &= mb - 1u;
-                    GRID_ADD(acc + ia[j] + 4 * DMAX * DMAX, 1.0f, sc.w);
+                    GRID_ADD(hacc + ia[j] + 4 * DMAX * DMAX, 1.0f, sc.w);
+                }
                 }
 #else
                 for (int j = 0; j < VW; ++j) {
@@ -267,14 +316,14 @@ void reproject(__global const float *color, __global const float *position,
                     if (ix < -1.0f || iy < -1.0f || ix >= dim || iy >= dim)
                         continue;
                     const int jx = (int)ix, jy = (int)iy;
-                    splat(acc, dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own, sc);
-                    splat(acc, dim, jx + 1, jy, wx * (1.0f - wy), c, own, sc);
-                    splat(acc, dim, jx, jy + 1, (1.0f - wx) * wy, c, own, sc);
-                    splat(acc, dim, jx + 1, jy + 1, wx * wy, c, own, sc);
+                    splat(HALF_ACC(i0 + j), dim, jx, jy, (1.0f - wx) * (1.0f - wy), c, own, sc);
+                    splat(HALF_ACC(i0 + j), dim, jx + 1, jy, wx * (1.0f - wy), c, own, sc);
+                    splat(HALF_ACC(i0 + j), dim, jx, jy + 1, (1.0f - wx) * wy, c, own, sc);
+                    splat(HALF_ACC(i0 + j), dim, jx + 1, jy + 1, wx * wy, c, own, sc);
 #else
                     if (gxf < 0.0f || gyf < 0.0f || gxf >= dim || gyf >= dim)
                         continue;
-                    splat(acc, dim, (int)gxf, (int)gyf, 1.0f, c, own, sc);
+                    splat(HALF_ACC(i0 + j), dim, (int)gxf, (int)gyf, 1.0f, c, own, sc);
 #endif
                 }
 #endif
@@ -288,6 +337,13 @@ void reproject(__global const float *color, __global const float *position,
         grid[DMAX * DMAX + k] = v.y;
         grid[2 * DMAX * DMAX + k] = v.z;
         grid[3 * DMAX * DMAX + k] = v.w;
+#if JOINT_HA
+        const float4 u = own_acc_b[k];
+        grid_b[k] = u.x;
+        grid_b[DMAX * DMAX + k] = u.y;
+        grid_b[2 * DMAX * DMAX + k] = u.z;
+        grid_b[3 * DMAX * DMAX + k] = u.w;
+#endif
     }
 #endif
 #if FIXED

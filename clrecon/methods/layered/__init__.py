@@ -349,6 +349,25 @@ class LayeredPipeline(Pipeline):
             Step("layered_composite", ("color", "params", "filtered"), ("out",), composite)),
             temps, self.bounds)
 
+    @property
+    def joint_steps(self) -> tuple[str, ...]:
+        """What the safeguard may run once on the frame for both halves
+        (:meth:`joint_halves`): reproject, unless the plan is box or fixed point."""
+        return () if self.box is not None or self.fixed else ("reproject",)
+
+    def joint_halves(self, queue, samples: DeviceSamples, ha: int, grids_b: cl.Buffer,
+                     wait_for=None) -> list | None:
+        """The safeguard's hook: after the shared steps ran on the frame ``samples``, reproject
+        both halves at once (:meth:`Reproject.joint_halves`), half A into this pipeline's
+        ``grids`` and B into ``grids_b``; the events, or None where the plan cannot (box,
+        fixed point: :attr:`joint_steps` is empty there)."""
+        if not self.joint_steps:
+            return None
+        self.reproject.joint_halves(queue, samples, ha, self.bucket_params(samples),
+                                    self.buffer("params"), self.buffer("grids"), grids_b,
+                                    self.buffer("buckets"), wait_for)
+        return list(self.reproject.events)
+
     def describe(self) -> dict:
         return {"method": "layered", "mode": self.mode, "filter": self.filter,
                 "defocus_only": not self.layout.has_motion,

@@ -46,6 +46,8 @@ class Reproject:
                        FIXED=self.fixed, LOCAL_ACC=self.local_acc)
         self.kernel = layered_kernel(context, "reproject", "reproject", layout, self.local,
                                      **defines)
+        self._defines, self._room = defines, 2 * need <= have
+        self._joint: dict[int, cl.Kernel] = {}
         self.bucket_kernel = layered_kernel(context, "reproject", "reproject_buckets", layout,
                                             self.local, **defines)
         self._own_buckets: cl.Buffer | None = None
@@ -103,5 +105,42 @@ class Reproject:
         n = ntx * nty * self.layout.maxp * self.local.x
         ev = cl.enqueue_nd_range_kernel(queue, self.kernel, (n,), (self.local.x,),
                                         wait_for=deps)
+        self.events.append(("reproject", ev))
+        return ev
+
+    def joint_halves(self, queue, samples: DeviceSamples, ha: int, bucket_coeffs,
+                     params: cl.Buffer, grids_a: cl.Buffer, grids_b: cl.Buffer,
+                     buckets: cl.Buffer, wait_for=None) -> cl.Event:
+        """Both of the safeguard's halves of a whole frame in one pass: samples ``0..ha-1`` of
+        every pixel into ``grids_a``, the rest into ``grids_b`` (each the grids of the same
+        layout), sums equal bit for bit to the pass run on each half's view. The frame's
+        samples are read once instead of twice (a half's view loads its pixels' cache lines
+        of both halves). Not for ``fixed`` (one fixed-point accumulator)."""
+        if self.fixed:
+            raise ValueError("joint_halves: the fixed-point accumulation is for one grid")
+        if not 1 <= ha < self.layout.spp or samples.spp != self.layout.spp:
+            raise ValueError(f"joint_halves: {ha} samples for half A of a frame of "
+                             f"{samples.spp} (the pass is built for {self.layout.spp})")
+        kernel = self._joint.get(ha)
+        if kernel is None:
+            defines = dict(self._defines, JOINT_HA=ha,
+                           LOCAL_ACC=self.local_acc and self._room)
+            kernel = self._joint[ha] = layered_kernel(queue.context, "reproject", "reproject",
+                                                      self.layout, self.local, **defines)
+        ntx, nty = self.layout.tiles(samples.width, samples.height)
+        npix = samples.width * samples.height
+        depth, sstride, soffset = samples.strided("depth")
+        self.bucket_kernel.set_args(depth, np.int32(sstride), np.int32(soffset), np.int32(npix),
+                                    *(np.float32(v) for v in bucket_coeffs), buckets)
+        ev = cl.enqueue_nd_range_kernel(queue, self.bucket_kernel, (npix,), None,
+                                        wait_for=wait_for)
+        self.events = [("reproject", ev)]
+        time = samples.strided("time")[0] if "time" in samples.buffers else depth
+        kernel.set_args(samples.strided("color")[0], samples.strided("position")[0], buckets,
+                        samples.strided("lens")[0], time, np.int32(sstride), np.int32(soffset),
+                        np.int32(samples.width), np.int32(samples.height), np.int32(ntx),
+                        params, grids_a, grids_b)
+        n = ntx * nty * self.layout.maxp * self.local.x
+        ev = cl.enqueue_nd_range_kernel(queue, kernel, (n,), (self.local.x,), wait_for=[ev])
         self.events.append(("reproject", ev))
         return ev
