@@ -73,7 +73,6 @@ class Reproject:
             raise ValueError("fixed: the pass needs the fixed-point grids and the colour bound "
                              "buffer")
         ntx, nty = self.layout.tiles(samples.width, samples.height)
-        npix = samples.width * samples.height
         need = self.buckets_bytes(samples.width, samples.height, self.layout.spp)
         if buckets is None:
             if self._own_buckets is None or self._own_buckets.size < need:
@@ -81,18 +80,8 @@ class Reproject:
             buckets = self._own_buckets
         elif buckets.size < need:
             raise ValueError(f"buckets: needs {need} bytes, got {buckets.size}")
-        depth, sstride, soffset = samples.strided("depth")
-        self.bucket_kernel.set_args(depth, np.int32(sstride), np.int32(soffset), np.int32(npix),
-                                    *(np.float32(v) for v in bucket_coeffs), buckets)
-        ev = cl.enqueue_nd_range_kernel(queue, self.bucket_kernel, (npix,), None,
-                                        wait_for=wait_for)
-        # named as the pass: its time and bytes are the pass's (reports list passes by name)
-        self.events = [("reproject", ev)]
-        time = samples.strided("time")[0] if "time" in samples.buffers else depth
-        args = [samples.strided("color")[0], samples.strided("position")[0], buckets,
-                samples.strided("lens")[0], time, np.int32(sstride), np.int32(soffset),
-                np.int32(samples.width), np.int32(samples.height), np.int32(ntx), params,
-                grids]
+        ev, args = self._buckets(queue, samples, bucket_coeffs, buckets, wait_for)
+        args += [np.int32(ntx), params, grids]
         deps = [ev]
         if self.fixed:
             n = samples.width * samples.height * samples.spp
@@ -107,6 +96,23 @@ class Reproject:
                                         wait_for=deps)
         self.events.append(("reproject", ev))
         return ev
+
+    def _buckets(self, queue, samples: DeviceSamples, bucket_coeffs, buckets: cl.Buffer,
+                 wait_for) -> tuple[cl.Event, list]:
+        """Enqueue ``reproject_buckets`` (``self.events`` starts with it, named as the pass:
+        its time and bytes are the pass's); the event and reproject's leading arguments (the
+        fields, strides and frame size)."""
+        npix = samples.width * samples.height
+        depth, sstride, soffset = samples.strided("depth")
+        self.bucket_kernel.set_args(depth, np.int32(sstride), np.int32(soffset), np.int32(npix),
+                                    *(np.float32(v) for v in bucket_coeffs), buckets)
+        ev = cl.enqueue_nd_range_kernel(queue, self.bucket_kernel, (npix,), None,
+                                        wait_for=wait_for)
+        self.events = [("reproject", ev)]
+        time = samples.strided("time")[0] if "time" in samples.buffers else depth
+        return ev, [samples.strided("color")[0], samples.strided("position")[0], buckets,
+                    samples.strided("lens")[0], time, np.int32(sstride), np.int32(soffset),
+                    np.int32(samples.width), np.int32(samples.height)]
 
     def joint_halves(self, queue, samples: DeviceSamples, ha: int, bucket_coeffs,
                      params: cl.Buffer, grids_a: cl.Buffer, grids_b: cl.Buffer,
@@ -128,18 +134,8 @@ class Reproject:
             kernel = self._joint[ha] = layered_kernel(queue.context, "reproject", "reproject",
                                                       self.layout, self.local, **defines)
         ntx, nty = self.layout.tiles(samples.width, samples.height)
-        npix = samples.width * samples.height
-        depth, sstride, soffset = samples.strided("depth")
-        self.bucket_kernel.set_args(depth, np.int32(sstride), np.int32(soffset), np.int32(npix),
-                                    *(np.float32(v) for v in bucket_coeffs), buckets)
-        ev = cl.enqueue_nd_range_kernel(queue, self.bucket_kernel, (npix,), None,
-                                        wait_for=wait_for)
-        self.events = [("reproject", ev)]
-        time = samples.strided("time")[0] if "time" in samples.buffers else depth
-        kernel.set_args(samples.strided("color")[0], samples.strided("position")[0], buckets,
-                        samples.strided("lens")[0], time, np.int32(sstride), np.int32(soffset),
-                        np.int32(samples.width), np.int32(samples.height), np.int32(ntx),
-                        params, grids_a, grids_b)
+        ev, args = self._buckets(queue, samples, bucket_coeffs, buckets, wait_for)
+        kernel.set_args(*args, np.int32(ntx), params, grids_a, grids_b)
         n = ntx * nty * self.layout.maxp * self.local.x
         ev = cl.enqueue_nd_range_kernel(queue, kernel, (n,), (self.local.x,), wait_for=[ev])
         self.events.append(("reproject", ev))
