@@ -14,7 +14,9 @@
  * half of a frame read in place for the safeguard: stride the frame's spp), c0, c1
  * (coc = c0 / depth + c1), inv_far and layer_scale (splat_layer), lv (int4 per level), bins
  * float (pixels, 12), zeroed where they are added to (the draw pass zeroes each bin it
- * consumes). Sample k of the frame (k = pixel SPP + i) is element pixel stride + offset + i.
+ * consumes); the tiles' flags uchar (pixels), set to 1 for every bin added to, zero
+ * elsewhere (the draw's scan reads them, and zeroes them as it draws). Sample k of the frame
+ * (k = pixel SPP + i) is element pixel stride + offset + i.
  * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, and the per-level lists TR, TM, RL, ML
  * (floats, NLEV each; TR[NLEV - 1], TM[NLEV - 1] unused).
  */
@@ -172,7 +174,7 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
  * (reproducible). */
 __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int height,
                                   const int tile, const int k, const int phase_x,
-                                  const int phase_y)
+                                  const int phase_y, __global uchar *flags)
 {
     __local int ridx[ROW_MAX];
     __local float r0[ROW_MAX], r1[ROW_MAX], r2[ROW_MAX], r3[ROW_MAX], r4[ROW_MAX],
@@ -200,8 +202,10 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
             for (int j = 0; j < n; ++j) {
                 const int idx = ridx[j];
                 if (idx != cur) {
-                    if (cur >= 0)
+                    if (cur >= 0) {
                         mip_bin_add(bins, cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, 0);
+                        flags[cur] = 1;
+                    }
                     cur = idx;
                     a0 = r0[j]; a1 = r1[j]; a2 = r2[j]; a3 = r3[j]; a4 = r4[j];
                     a5 = r5[j]; a6 = r6[j]; a7 = r7[j]; a8 = r8[j];
@@ -210,7 +214,9 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
                     a5 += r5[j]; a6 += r6[j]; a7 += r7[j]; a8 += r8[j];
                 }
             }
-            if (cur >= 0)
+            if (cur >= 0) {
                 mip_bin_add(bins, cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, 0);
+                flags[cur] = 1;
+            }
         }
 }

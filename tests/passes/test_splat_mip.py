@@ -98,8 +98,10 @@ def test_energy_is_kept(device, rng):
                            pipe.geometry.image_bytes)
     inv_far, scale = layer_params(buf.inspect(), pipe.layers)
     s = DeviceSamples.upload(device.queue, buf, pipe.fields)
-    pipe.mip.bin(device.queue, s, inv_far, scale, pipe.buffers["mip_bins"])
-    pipe.mip.draw(device.queue, pipe.buffers["mip_bins"], pipe.buffers["mip_image"])
+    flags = pipe.buffers.get("mip_flags")  # the owner tiles' (consumed by the draw as well)
+    pipe.mip.bin(device.queue, s, inv_far, scale, pipe.buffers["mip_bins"], flags=flags)
+    pipe.mip.draw(device.queue, pipe.buffers["mip_bins"], pipe.buffers["mip_image"],
+                  flags=flags)
     cl.enqueue_copy(device.queue, img, pipe.buffers["mip_image"])
     device.queue.finish()
     total = float(img.reshape(-1, 4)[:, 3].sum())
@@ -176,3 +178,17 @@ def test_bins_are_cleared_unless_known_clean(device, rng):
     cl.enqueue_copy(device.queue, img, out)
     device.queue.finish()
     assert np.array_equal(img, first)
+    if "mip_flags" in pipe.plan.temporaries:  # the owner tiles' flags: junk is cleared too
+        n = pipe.plan.temporaries["mip_flags"]
+        flags = cl.Buffer(device.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
+                          hostbuf=np.ones(n, np.uint8))
+        pipe(device.queue, s, out, temporaries={"mip_flags": flags}).wait()
+        cl.enqueue_copy(device.queue, img, out)
+        back = np.empty(n, np.uint8)
+        cl.enqueue_copy(device.queue, back, flags)
+        device.queue.finish()
+        assert np.array_equal(img, first) and not back.any(), "the draw consumes every flag"
+        pipe(device.queue, s, out).wait()  # own buffers again
+        cl.enqueue_copy(device.queue, img, out)
+        device.queue.finish()
+        assert np.array_equal(img, first)

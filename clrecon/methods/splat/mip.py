@@ -135,7 +135,11 @@ class MipSplat:
         self.events: list[tuple[str, cl.Event]] = []
 
     def bin(self, queue, samples: DeviceSamples, inv_far: float, layer_scale: float,
-            bins: cl.Buffer, wait_for=None) -> cl.Event:
+            bins: cl.Buffer, wait_for=None, flags: cl.Buffer | None = None) -> cl.Event:
+        """The samples into ``bins`` (zero before); the owner tiles also set ``flags``
+        (``geo.pixels`` bytes, zero before) where a bin was added to."""
+        if self.scatter == "tiles" and flags is None:
+            raise ValueError("bin: the owner tiles need the bins' flags")
         w, h, spp = samples.width, samples.height, samples.spp
         c0, c1 = samples.coc
         # a view of a frame (the safeguard's halves) is read in place: samples.strided()
@@ -157,7 +161,7 @@ class MipSplat:
         evs = wait_for
         for px, py, gx, gy in owner_phases(nx, ny, k):
             self.bin_kernel.set_args(*args, np.int32(w), np.int32(h), np.int32(tile),
-                                     np.int32(k), np.int32(px), np.int32(py))
+                                     np.int32(k), np.int32(px), np.int32(py), flags)
             # one work-item per work-group: the tiles spread over the compute units
             ev = cl.enqueue_nd_range_kernel(queue, self.bin_kernel, (gx, gy), (1, 1),
                                             wait_for=evs)
@@ -165,7 +169,12 @@ class MipSplat:
             evs = [ev]
         return self.events[-1][1]
 
-    def draw(self, queue, bins: cl.Buffer, img: cl.Buffer, wait_for=None) -> cl.Event:
+    def draw(self, queue, bins: cl.Buffer, img: cl.Buffer, wait_for=None,
+             flags: cl.Buffer | None = None) -> cl.Event:
+        """One PSF per non-empty bin into ``img``; each drawn bin (and with the owner tiles
+        its flag) is zeroed."""
+        if self.scatter == "tiles" and flags is None:
+            raise ValueError("draw: the owner tiles need the bins' flags")
         g = self.geo
         # the widest level (a coarse level's larger pad can outgrow level 0 on tiny frames)
         nw, nh = int(g.levels[:, 1].max()), int(g.levels[:, 2].max())
@@ -183,7 +192,7 @@ class MipSplat:
         evs = wait_for
         for px, py, gx, gy in owner_phases(nx, ny, k):
             self.draw_kernel.set_args(bins, img, self.levels, np.int32(tile), np.int32(k),
-                                      np.int32(px), np.int32(py))
+                                      np.int32(px), np.int32(py), flags)
             ev = cl.enqueue_nd_range_kernel(queue, self.draw_kernel, (gx, gy, z), None,
                                             wait_for=evs)
             self.events.append(("splat_mip_draw", ev))

@@ -41,36 +41,48 @@ class MipPlan:
                             geo, scatter)
         self.composite = SplatComposite(context, self.layers, False,
                                         local_size_of(config(SplatComposite.TUNABLE)))
+        tiles = self.mip.scatter == "tiles"
         temps = {"mip_image": geo.image_bytes, "mip_bins": geo.bin_bytes,
                  "ring": self.layers * 16}
+        # the owner tiles' flags: a byte a bin, set where the bin pass added, what the draw
+        # scans (not the bins' weights, a cache line apart)
+        bin_bufs = ("mip_bins", "mip_flags") if tiles else ("mip_bins",)
+        if tiles:
+            temps["mip_flags"] = geo.pixels
 
-        # the draw pass zeroes every bin it consumes, so the pipeline's own bins are clean
-        # after a frame and their clear (a fifth of the frame's bytes) is skipped; bins an
-        # embedder passes, or ours after a frame that stopped between bin and draw, are
-        # cleared
-        self._clean_bins: set[int] = set()
+        # the draw pass zeroes every bin (and flag) it consumes, so the pipeline's own bins
+        # are clean after a frame and their clear (a fifth of the frame's bytes) is skipped;
+        # bins or flags an embedder passes, or ours after a frame that stopped between bin
+        # and draw, are cleared
+        self._clean_bins: set[tuple[int, ...]] = set()
+
+        def key(f):
+            return tuple(f.buffers[k].int_ptr for k in bin_bufs)
 
         def clear(queue, f, wait):
             # clean bins get a 16-byte fill of the zeros they hold: every frame enqueues the
             # same events (what the benches pair up run to run)
-            clean = f.buffers["mip_bins"].int_ptr in self._clean_bins
-            sizes = {"mip_image": temps["mip_image"],
-                     "mip_bins": 16 if clean else temps["mip_bins"]}
-            return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
-                                                     n, wait_for=wait))
-                    for k, n in sizes.items()]
+            clean = key(f) in self._clean_bins
+            sizes = {"mip_image": temps["mip_image"]} | {
+                k: 16 if clean else temps[k] for k in bin_bufs}
+            return [("clear", cl.enqueue_fill_buffer(
+                queue, f.buffers[k], np.uint8(0) if k == "mip_flags" else np.float32(0), 0,
+                n, wait_for=wait)) for k, n in sizes.items()]
+
+        def flags(f):
+            return f.buffers["mip_flags"] if tiles else None
 
         def bin_(queue, f, wait):
             inv_far, scale = layer_params(f.info, self.layers)
-            self._clean_bins.discard(f.buffers["mip_bins"].int_ptr)
-            self.mip.bin(queue, f.samples, inv_far, scale, f.buffers["mip_bins"], wait)
+            self._clean_bins.discard(key(f))
+            self.mip.bin(queue, f.samples, inv_far, scale, f.buffers["mip_bins"], wait,
+                         flags(f))
             return self.mip.events
 
         def draw(queue, f, wait):
-            bins = f.buffers["mip_bins"]
-            self.mip.draw(queue, bins, f.buffers["mip_image"], wait)
-            if self._own.get("mip_bins") is bins:
-                self._clean_bins.add(bins.int_ptr)
+            self.mip.draw(queue, f.buffers["mip_bins"], f.buffers["mip_image"], wait, flags(f))
+            if all(self._own.get(k) is f.buffers[k] for k in bin_bufs):
+                self._clean_bins.add(key(f))
             return self.mip.events
 
         def upsample(queue, f, wait):
@@ -85,9 +97,9 @@ class MipPlan:
                 geo.pad, b["out"], wait, color=color, spp=f.spp, stride=stride,
                 offset=offset))]
 
-        steps = [Step("clear", (), ("mip_image", "mip_bins"), clear),
-                 Step("bin", tuple(FIELDS), ("mip_bins",), bin_),
-                 Step("draw", ("mip_bins",), ("mip_image",), draw)]
+        steps = [Step("clear", (), ("mip_image",) + bin_bufs, clear),
+                 Step("bin", tuple(FIELDS), bin_bufs, bin_),
+                 Step("draw", bin_bufs, ("mip_image",), draw)]
         if geo.nlev > 1:
             steps.append(Step("upsample", ("mip_image",), ("mip_image",), upsample))
         steps.append(Step("splat_composite", ("mip_image", "color"), ("out",), composite))
