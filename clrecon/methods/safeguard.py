@@ -60,9 +60,8 @@ plus one split copy of the fields (none where the method's passes read each half
 ``Pipeline.sample_views``: sweep's block sort, layered, splat's mip plan) and three cheap
 passes (the statistics, and the windowed means in two separable passes: row segments, then
 columns and the blend). A method's ``joint_steps`` (layered's reproject) run once on the
-frame for both halves, B's outputs in a second set of buffers: one read of the samples where
-two views read each cache line twice (deep 1280x720 8 spp, PoCL: layered's default 251
-against 287 ms, for 300 MB more); where B's buffers do not fit, each half runs them.
+frame for both halves, B's outputs apart: one read of the samples, not two views' (720p 8 spp,
+PoCL: layered's default 251 against 287 ms, 300 MB more; off where B's buffers do not fit).
 ``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports);
 ``estimate_error=True`` also returns the error image.
 """
@@ -243,12 +242,13 @@ class Safeguarded(Pipeline):
             self.half_b.sample_views
         half_fields = inner_fields if self.views else tuple(
             f"{h}.{f}" for h in "ab" for f in inner_fields)
-        # the steps the frame runs once for both halves, each half's outputs apart
-        self.joint = tuple(getattr(self.full, "joint_steps", ())) if (
-            joint and self.views and self.shared) else ()
-        self.joint = self.joint if all(n in have for n in self.joint) else ()
+        # steps the frame runs once for both halves, and their outputs the halves' rest reads
+        js = tuple(getattr(self.full, "joint_steps", ())) if joint and self.views else ()
+        self.joint = js if self.shared and all(n in have for n in js) else ()
+        rest_in = {i for st in self.half_a.plan.steps if st.name not in self.shared + self.joint
+                   for i in st.inputs} if self.joint else set()
         self.joint_out = tuple(o for n in self.joint for o in have[n].outputs
-                               if o in self.full.plan.temporaries and o != "buckets")
+                               if o in self.full.plan.temporaries and o in rest_in)
         steps = []
         if not is_box:
             temps |= {"ma": npx * 12, "mb": npx * 12}
