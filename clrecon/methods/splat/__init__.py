@@ -51,6 +51,7 @@ import logging
 import numpy as np
 import pyopencl as cl
 
+from clrecon.core.fill import zero_buffer
 from clrecon.core.fixed import BOUND_BYTES
 from clrecon.core.knobs import check_bool, check_choice, check_float, check_int
 from clrecon.core.pipeline import Pipeline, register
@@ -240,8 +241,7 @@ class SplatPipeline(MipPlan, Pipeline):
         targets = tuple(acc.values())
 
         def clear(queue, f, wait):
-            return [("clear", cl.enqueue_fill_buffer(queue, f.buffers[k], np.float32(0), 0,
-                                                     temps[k], wait_for=wait))
+            return [("clear", zero_buffer(queue, f.buffers[k], temps[k], wait))
                     for k in targets]
 
         def color_bound(queue, f, wait):

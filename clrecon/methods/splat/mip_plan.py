@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import logging
 
-import numpy as np
-import pyopencl as cl
-
+from clrecon.core.fill import zero_buffer
 from clrecon.core.plan import Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
 from clrecon.methods.splat.composite import SplatComposite
@@ -65,9 +63,8 @@ class MipPlan:
             clean = key(f) in self._clean_bins
             sizes = {"mip_image": temps["mip_image"]} | {
                 k: 16 if clean else temps[k] for k in bin_bufs}
-            return [("clear", cl.enqueue_fill_buffer(
-                queue, f.buffers[k], np.uint8(0) if k == "mip_flags" else np.float32(0), 0,
-                n, wait_for=wait)) for k, n in sizes.items()]
+            return [("clear", zero_buffer(queue, f.buffers[k], n, wait))
+                    for k, n in sizes.items()]
 
         def flags(f):
             return f.buffers["mip_flags"] if tiles else None
