@@ -17,12 +17,58 @@
  *                    (box's own: mean3(vb), unbiased)
  * Arguments: split: src (P, S, C) into dst_a (P, ha, C) and dst_b (P, S - ha, C), C = `width`
  * floats a sample; stats: color (H, W, S, 3), m, ma, mb (H, W, 3) the method's images of the
- * frame (or written: the halves' mean) and of its halves, box (H, W, 3), stats float4
- * (H, W); rows: rows3, rows7 float4 (H, W); blend: out (H, W, 3), error (H, W).
- * Preconditions: 1 <= ha < S (both halves hold samples). No compile-time options; the local
- * sizes are launch parameters only.
+ * frame (or written: the halves' mean) and of its halves, box (H, W, 3), stats: four planes
+ * (d2, vb, vm, e) of (H, sp) floats, pixel x at column x + 3, sp >= rp + 6, the columns
+ * outside the image 0 and e = SG_PAD_E; rows: eight planes of (H, rp) floats, rp a multiple of
+ * SG_VW >= W (rows3 = vb3, vm3, e3, ee3; rows7 = e7, vb7, e3max, e7max); blend: out (H, W, 3),
+ * error (H, W).
+ * Vector width: safeguard_rows and safeguard_blend run SG_VW consecutive pixels of a row per
+ * work-item as floatN (SG_VW 1, 4, 8 or 16; the host passes 16 for CPUs, 1 otherwise). PoCL
+ * 3.1 vectorises a kernel across work-items only where its body holds no vector-typed value
+ * (its remarks, POCL_VECTORIZER_REMARKS=1: "instruction return type cannot be vectorized"),
+ * and LLVM's SLP pass makes them from the taps' adjacent loads: the one-pixel kernels ran
+ * scalar. safeguard_rows at 1280x720 on a 2-core Xeon: 10.3 ms one pixel a work-item, 0.9 ms
+ * 16 (the same values, bit for bit).
+ * Preconditions: 1 <= ha < S (both halves hold samples). Compile-time: SG_VW (default 16);
+ * the local sizes are the runtime's.
  */
 #include "common.h"
+
+#ifndef SG_VW
+#define SG_VW 16
+#endif
+/* a padding column's exponent: below every float's, so it never sets a window's largest, and
+ * 2^(2 (SG_PAD_E - e)) flushes to 0 */
+#define SG_PAD_E (-1000.0f)
+#define SG_CAT_(a, b) a##b
+#define SG_CAT(a, b) SG_CAT_(a, b)
+#if SG_VW == 1
+typedef float vfloat;
+typedef int vint;
+#define VLOAD(p) (*(p))
+#define VSTORE(v, p) (*(p) = (v))
+#define CONVERT_INT(v) ((int)(v))
+#define CONVERT_FLOAT(v) ((float)(v))
+#define AS_FLOAT(v) as_float(v)
+#define SG_LANES 0
+#else
+typedef SG_CAT(float, SG_VW) vfloat;
+typedef SG_CAT(int, SG_VW) vint;
+#define VLOAD(p) SG_CAT(vload, SG_VW)(0, p)
+#define VSTORE(v, p) SG_CAT(vstore, SG_VW)(v, 0, p)
+#define CONVERT_INT(v) SG_CAT(convert_int, SG_VW)(v)
+#define CONVERT_FLOAT(v) SG_CAT(convert_float, SG_VW)(v)
+#define AS_FLOAT(v) SG_CAT(as_float, SG_VW)(v)
+#if SG_VW == 4
+#define SG_LANES ((int4)(0, 1, 2, 3))
+#elif SG_VW == 8
+#define SG_LANES ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
+#elif SG_VW == 16
+#define SG_LANES ((int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#else
+#error "SG_VW must be 1, 4, 8 or 16"
+#endif
+#endif
 
 __kernel void safeguard_split(__global const float *src, __global float *dst_a,
                               __global float *dst_b, int pixels, int spp, int ha, int width)
@@ -54,12 +100,21 @@ inline float3 load3(__global const float *a, int i) { return vload3(i, a); }
  * nothing measurable to it). */
 __kernel void safeguard_stats(__global const float *color, __global float *m,
                               __global const float *ma, __global const float *mb,
-                              __global float *box, __global float4 *stats,
-                              int width, int height, int spp, int ha, int has_method)
+                              __global float *box, __global float *stats,
+                              int width, int height, int spp, int ha, int has_method, int sp)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
-    if (x >= width || y >= height)
+    /* one work-item per column of the planes: the padding's too */
+    const int col = get_global_id(0), y = get_global_id(1), x = col - 3;
+    if (col >= sp || y >= height)
         return;
+    const size_t plane = (size_t)sp * height, q = (size_t)y * sp + col;
+    if (x < 0 || x >= width) {
+        stats[q] = 0.0f;
+        stats[q + plane] = 0.0f;
+        stats[q + 2 * plane] = 0.0f;
+        stats[q + 3 * plane] = SG_PAD_E;
+        return;
+    }
     const int p = pixel_index(x, y, width);
     const __global float *c = color + (size_t)p * spp * 3;
     float3 sa = (float3)(0.0f), sb = (float3)(0.0f);
@@ -94,137 +149,158 @@ __kernel void safeguard_stats(__global const float *color, __global float *m,
         vm = k * lum2((vma - vmb) * sc);
     }
     vstore3(full, p, box);
-    stats[p] = (float4)(d2, vb, vm, (float)e);
+    stats[q] = d2;
+    stats[q + plane] = vb;
+    stats[q + 2 * plane] = vm;
+    stats[q + 3 * plane] = (float)e;
 }
 
 /* 2^n for n <= 0, flushed to 0 below float32's normal range (n < -126): a pixel that much
  * dimmer than its window's brightest adds nothing measurable. Built from the bits, not
- * ldexp: a select the vectoriser keeps in lanes, where ldexp is a library call. */
-__attribute__((always_inline)) inline float pow2_nonpos(int n)
+ * ldexp: a select that stays in lanes, where ldexp is a library call. */
+__attribute__((always_inline)) inline vfloat pow2_nonpos(const vint n)
 {
-    return n < -126 ? 0.0f : as_float((n + 127) << 23);
+    return select((vfloat)(0.0f), AS_FLOAT((n + 127) << 23), n >= -126);
 }
 
 /* The windowed means, separably: safeguard_rows sums each pixel's row segments (3 and 7
- * wide, clipped to the image) in units of the segment's largest exponent; safeguard_blend
- * sums 3 and 7 of those segments down the column, each rescaled to the 7x7 window's
- * largest exponent (exact powers of two, so the result is the 2D sums' up to the order of
- * the additions). Unrolled fixed trip counts with clamped loads and masks (PoCL, 1280x720:
- * the single 7x7 kernel took 190 ms, the two take about 50). rows3 = (vb, vm, e, e^2) over
- * 3, rows7 = (e, vb, exponent of the 3-wide segment, of the 7-wide one) over 7, with
- * e = d2 - vm - vb. */
-__kernel void safeguard_rows(__global const float4 *stats, __global float4 *rows3,
-                             __global float4 *rows7, int width, int height)
+ * wide; the padding columns add 0) in units of the segment's largest exponent;
+ * safeguard_blend sums 3 and 7 of those segments down the column, each rescaled to the 7x7
+ * window's largest exponent (exact powers of two, so the result is the 2D sums' up to the
+ * order of the additions). SG_VW pixels x0 .. x0 + SG_VW - 1 a work-item (x0 a multiple of
+ * SG_VW; lanes past the image's width compute from the padding and are not stored). */
+__kernel void safeguard_rows(__global const float *stats, __global float *rows, int width,
+                             int height, int sp, int rp)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
-    if (x < width && y < height) {
-        const int row = y * width;
-        int e3max = INT_MIN, e7max = INT_MIN;
-        #pragma unroll
-        for (int k = -3; k <= 3; ++k) {
-            const int xx = x + k;
-            const int ex = (int)stats[row + clamp(xx, 0, width - 1)].w;
-            const bool in = xx >= 0 && xx < width;
-            e7max = in ? max(e7max, ex) : e7max;
-            e3max = (in && k >= -1 && k <= 1) ? max(e3max, ex) : e3max;
-        }
-        float vb3 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f, vb7 = 0.0f;
-        #pragma unroll
-        for (int k = -3; k <= 3; ++k) {
-            const int xx = x + k;
-            const float4 s = stats[row + clamp(xx, 0, width - 1)];
-            const bool in = xx >= 0 && xx < width;
-            const bool in3 = in && k >= -1 && k <= 1;
-            /* to the segment's units */
-            const float f7 = in ? pow2_nonpos(2 * ((int)s.w - e7max)) : 0.0f;
-            const float f3 = in3 ? pow2_nonpos(2 * ((int)s.w - e3max)) : 0.0f;
-            const float e = s.x - s.z - s.y;
-            e7 += f7 * e;
-            vb7 += f7 * s.y;
-            vb3 += f3 * s.y;
-            vm3 += f3 * s.z;
+    const int x0 = get_global_id(0) * SG_VW, y = get_global_id(1);
+    if (x0 >= width || y >= height)
+        return;
+    const size_t plane = (size_t)sp * height;
+    /* column x0 + 3 + k is pixel x0 + k */
+    const __global float *d2 = stats + (size_t)y * sp + x0 + 3;
+    const __global float *vbp = d2 + plane, *vmp = d2 + 2 * plane, *ep = d2 + 3 * plane;
+    vint e3max = (vint)(INT_MIN), e7max = (vint)(INT_MIN);
+    #pragma unroll
+    for (int k = -3; k <= 3; ++k) {
+        const vint ex = CONVERT_INT(VLOAD(ep + k));
+        e7max = max(e7max, ex);
+        if (k >= -1 && k <= 1)
+            e3max = max(e3max, ex);
+    }
+    vfloat vb3 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f, vb7 = 0.0f;
+    #pragma unroll
+    for (int k = -3; k <= 3; ++k) {
+        const vint ex = CONVERT_INT(VLOAD(ep + k));
+        const vfloat sd = VLOAD(d2 + k), svb = VLOAD(vbp + k), svm = VLOAD(vmp + k);
+        /* to the segment's units */
+        const vfloat f7 = pow2_nonpos(2 * (ex - e7max));
+        const vfloat e = sd - svm - svb;
+        e7 += f7 * e;
+        vb7 += f7 * svb;
+        if (k >= -1 && k <= 1) {
+            const vfloat f3 = pow2_nonpos(2 * (ex - e3max));
+            vb3 += f3 * svb;
+            vm3 += f3 * svm;
             e3 += f3 * e;
             ee3 += (f3 * e) * (f3 * e);
         }
-        const int p = row + x;
-        rows3[p] = (float4)(vb3, vm3, e3, ee3);
-        rows7[p] = (float4)(e7, vb7, (float)e3max, (float)e7max);
     }
+    const size_t rplane = (size_t)rp * height;
+    __global float *o = rows + (size_t)y * rp + x0;
+    VSTORE(vb3, o);
+    VSTORE(vm3, o + rplane);
+    VSTORE(e3, o + 2 * rplane);
+    VSTORE(ee3, o + 3 * rplane);
+    VSTORE(e7, o + 4 * rplane);
+    VSTORE(vb7, o + 5 * rplane);
+    VSTORE(CONVERT_FLOAT(e3max), o + 6 * rplane);
+    VSTORE(CONVERT_FLOAT(e7max), o + 7 * rplane);
 }
 
 /* mode 0: box (image = box, error = mean3(vb)); 1: the method alone (image = m, error = its
  * estimate); 2: the blend. error may be written or not (write_error). */
-__kernel void safeguard_blend(__global const float4 *rows3, __global const float4 *rows7,
-                              __global const float *box, __global const float *m,
-                              __global float *out, __global float *error, int width,
-                              int height, int mode, int write_error)
+__kernel void safeguard_blend(__global const float *rows, __global const float *box,
+                              __global const float *m, __global float *out,
+                              __global float *error, int width, int height, int rp, int mode,
+                              int write_error)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
-    if (x < width && y < height) {
-        int emax = INT_MIN;
-        #pragma unroll
-        for (int k = -3; k <= 3; ++k) {
-            const int yy = y + k;
-            const int ex = (int)rows7[clamp(yy, 0, height - 1) * width + x].w;
-            emax = (yy >= 0 && yy < height) ? max(emax, ex) : emax;
+    const int x0 = get_global_id(0) * SG_VW, y = get_global_id(1);
+    if (x0 >= width || y >= height)
+        return;
+    const size_t rplane = (size_t)rp * height;
+    const __global float *col = rows + x0;
+    vint emax = (vint)(INT_MIN);
+    #pragma unroll
+    for (int k = -3; k <= 3; ++k) {
+        const int yy = y + k;
+        if (yy >= 0 && yy < height)
+            emax = max(emax, CONVERT_INT(VLOAD(col + 7 * rplane + (size_t)yy * rp)));
+    }
+    vfloat vb3 = 0.0f, vb7 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f;
+    #pragma unroll
+    for (int k = -3; k <= 3; ++k) {
+        const int yy = y + k;
+        if (yy < 0 || yy >= height)
+            continue;
+        const __global float *r = col + (size_t)yy * rp;
+        const vfloat f7 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 7 * rplane)) - emax));
+        e7 += f7 * VLOAD(r + 4 * rplane);
+        vb7 += f7 * VLOAD(r + 5 * rplane);
+        if (k >= -1 && k <= 1) {
+            const vfloat f3 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 6 * rplane)) - emax));
+            vb3 += f3 * VLOAD(r);
+            vm3 += f3 * VLOAD(r + rplane);
+            e3 += f3 * VLOAD(r + 2 * rplane);
+            ee3 += (f3 * f3) * VLOAD(r + 3 * rplane);
         }
-        float vb3 = 0.0f, vb7 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f;
-        #pragma unroll
-        for (int k = -3; k <= 3; ++k) {
-            const int yy = y + k;
-            const int q = clamp(yy, 0, height - 1) * width + x;
-            const float4 r7 = rows7[q];
-            const bool in = yy >= 0 && yy < height;
-            const bool in3 = in && k >= -1 && k <= 1;
-            const float f7 = in ? pow2_nonpos(2 * ((int)r7.w - emax)) : 0.0f;
-            e7 += f7 * r7.x;
-            vb7 += f7 * r7.y;
-            if (in3) {
-                const float4 r3 = rows3[q];
-                const float f3 = pow2_nonpos(2 * ((int)r7.z - emax));
-                vb3 += f3 * r3.x;
-                vm3 += f3 * r3.y;
-                e3 += f3 * r3.z;
-                ee3 += (f3 * f3) * r3.w;
-            }
-        }
-        /* the windows' pixel counts inside the image */
-        const int c3 = min(x + 1, width - 1) - max(x - 1, 0) + 1;
-        const int c7 = min(x + 3, width - 1) - max(x - 3, 0) + 1;
-        const int r3 = min(y + 1, height - 1) - max(y - 1, 0) + 1;
-        const int r7 = min(y + 3, height - 1) - max(y - 3, 0) + 1;
-        const float n3 = (float)(c3 * r3), n7 = (float)(c7 * r7);
-        /* box's variance over 3x3, or 7x7 where larger: a pixel whose own samples all missed
-         * a rare contributor (a blurred highlight) has halves that agree and a variance near
-         * 0, while its neighbours' samples show the spread */
-        vb3 /= n3;
-        const float vbw = fmax(vb3, vb7 / n7);
-        vm3 /= n3;
-        /* the 7x7 mean, or the 3x3 one where it stands two standard errors above zero (a
-         * bias along a thin edge, which the wider window dilutes; noise alone rarely gets
-         * there) */
-        const float mu3 = e3 / n3;
-        const float se3 = sqrt(fmax(ee3 / n3 - mu3 * mu3, 0.0f) / n3);
-        const float b2 = fmax(0.0f, fmax(e7 / n7, mu3 - 2.0f * se3));
-        const float err_m = b2 + vm3;
-        const int p = pixel_index(x, y, width);
+    }
+    /* the windows' pixel counts inside the image */
+    const vint x = x0 + SG_LANES;
+    /* the scalar operands broadcast explicitly: Oclgrind's min (gentype, sgentype) reads
+     * the scalar wrongly */
+    const vint last = (vint)(width - 1), zero = (vint)(0);
+    const vint c3 = min(x + 1, last) - max(x - 1, zero) + 1;
+    const vint c7 = min(x + 3, last) - max(x - 3, zero) + 1;
+    const int r3 = min(y + 1, height - 1) - max(y - 1, 0) + 1;
+    const int r7 = min(y + 3, height - 1) - max(y - 3, 0) + 1;
+    const vfloat n3 = CONVERT_FLOAT(c3 * r3), n7 = CONVERT_FLOAT(c7 * r7);
+    /* box's variance over 3x3, or 7x7 where larger: a pixel whose own samples all missed
+     * a rare contributor (a blurred highlight) has halves that agree and a variance near
+     * 0, while its neighbours' samples show the spread */
+    vb3 /= n3;
+    const vfloat vbw = fmax(vb3, vb7 / n7);
+    vm3 /= n3;
+    /* the 7x7 mean, or the 3x3 one where it stands two standard errors above zero (a
+     * bias along a thin edge, which the wider window dilutes; noise alone rarely gets
+     * there) */
+    const vfloat mu3 = e3 / n3;
+    const vfloat se3 = sqrt(fmax(ee3 / n3 - mu3 * mu3, 0.0f) / n3);
+    const vfloat b2 = fmax(0.0f, fmax(e7 / n7, mu3 - 2.0f * se3));
+    const vfloat err_m = b2 + vm3;
+    vfloat w = 0.0f, err = vb3;
+    if (mode == 1) {
+        err = err_m;
+    } else if (mode == 2) {
+        const vfloat den = vbw + err_m;
+        w = select((vfloat)(0.0f), vbw / den, den > 0.0f);
+        err = w * w * err_m + (1.0f - w) * (1.0f - w) * vbw;
+    }
+    /* back to radiance^2; beyond float32 (colours above ~1e19): FLT_MAX */
+    const vfloat errs = fmin(ldexp(err, 2 * emax), FLT_MAX);
+    float wl[SG_VW], el[SG_VW];
+    VSTORE(w, wl);
+    VSTORE(errs, el);
+    const int n = min(SG_VW, width - x0);
+    for (int i = 0; i < n; ++i) {
+        const int p = pixel_index(x0 + i, y, width);
         const float3 bx = load3(box, p);
-        float3 img;
-        float err;
-        if (mode == 0) {
-            img = bx;
-            err = vb3;
-        } else if (mode == 1) {
+        float3 img = bx;
+        if (mode == 1)
             img = load3(m, p);
-            err = err_m;
-        } else {
-            const float den = vbw + err_m;
-            const float w = den > 0.0f ? vbw / den : 0.0f;
-            img = bx + w * (load3(m, p) - bx);
-            err = w * w * err_m + (1.0f - w) * (1.0f - w) * vbw;
-        }
+        else if (mode == 2)
+            img = bx + wl[i] * (load3(m, p) - bx);
         vstore3(img, p, out);
-        if (write_error) /* back to radiance^2; beyond float32 (colours above ~1e19): FLT_MAX */
-            error[p] = fmin(ldexp(err, 2 * emax), FLT_MAX);
+        if (write_error)
+            error[p] = el[i];
     }
 }

@@ -70,23 +70,17 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-import pyopencl as cl
 
-from clrecon.core.device import get_kernel
 from clrecon.core.errors import DeviceMemoryError
 from clrecon.core.pipeline import DeviceSamples, Pipeline, make_method
 from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
+from clrecon.methods.safeguard_passes import SafeguardPasses, halves
 
 _FLT_MAX = float(np.finfo(np.float32).max)  # the error image saturates there
 
 #: the blend kernel's modes
 MODE_BOX, MODE_METHOD, MODE_BLEND = 0, 1, 2
-
-
-def halves(spp: int) -> tuple[int, int]:
-    """Sample counts of the two halves of an ``spp``-sample pixel."""
-    return spp // 2, spp - spp // 2
 
 
 # -- NumPy reference -------------------------------------------------------------------------
@@ -145,44 +139,6 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
     return img, np.minimum(w * w * err_m + (1 - w) ** 2 * vbw, _FLT_MAX)
 
 
-# -- passes ----------------------------------------------------------------------------------
-class SafeguardPasses:
-    """The four kernels of ``kernels/safeguard.cl``."""
-
-    def __init__(self, context: cl.Context):
-        self.split = get_kernel(context, "safeguard", "safeguard_split")
-        self.stats = get_kernel(context, "safeguard", "safeguard_stats")
-        self.rows = get_kernel(context, "safeguard", "safeguard_rows")
-        self.blend = get_kernel(context, "safeguard", "safeguard_blend")
-
-    def split_field(self, queue, src, dst_a, dst_b, pixels, spp, width, wait_for=None):
-        ha, _ = halves(spp)
-        self.split.set_args(src, dst_a, dst_b, np.int32(pixels), np.int32(spp), np.int32(ha),
-                            np.int32(width))
-        return cl.enqueue_nd_range_kernel(queue, self.split, (pixels,), None,
-                                          wait_for=wait_for)
-
-    def run_stats(self, queue, color, m, ma, mb, box, stats, w, h, spp, has_method,
-                  wait_for=None):
-        """has_method: 0 box alone, 1 with the method's image m, 2 m written as the halves'
-        mean."""
-        ha, _ = halves(spp)
-        self.stats.set_args(color, m, ma, mb, box, stats, np.int32(w), np.int32(h),
-                            np.int32(spp), np.int32(ha), np.int32(has_method))
-        return cl.enqueue_nd_range_kernel(queue, self.stats, (w, h), None, wait_for=wait_for)
-
-    def run_blend(self, queue, stats, rows3, rows7, box, m, out, error, w, h, mode,
-                  write_error, wait_for=None):
-        """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
-        ("safeguard_blend", ev)]."""
-        self.rows.set_args(stats, rows3, rows7, np.int32(w), np.int32(h))
-        ev = cl.enqueue_nd_range_kernel(queue, self.rows, (w, h), None, wait_for=wait_for)
-        self.blend.set_args(rows3, rows7, box, m, out, error, np.int32(w), np.int32(h),
-                            np.int32(mode), np.int32(write_error))
-        return [("safeguard_rows", ev), ("safeguard_blend", cl.enqueue_nd_range_kernel(
-            queue, self.blend, (w, h), None, wait_for=[ev]))]
-
-
 class Safeguarded(Pipeline):
     #: the weights depend on the colours: a frame with negative radiance is reconstructed
     #: as its positive and negative parts apart (see :func:`clrecon.core.pipeline.run`)
@@ -234,8 +190,9 @@ class Safeguarded(Pipeline):
         self.shared_out = tuple(o for n in self.shared for o in have[n].outputs)
         npx = info.width * info.height
         inner_fields = tuple(f for f in FIELDS if f in set(self.full.plan.fields) | {"color"})
-        temps = {"m": npx * 12, "box": npx * 12, "stats": npx * 16, "rows3": npx * 16,
-                 "rows7": npx * 16, "error": npx * 4}
+        temps = {"m": npx * 12, "box": npx * 12, "error": npx * 4,
+                 "stats": self.passes.stats_bytes(info.width, info.height),
+                 "rows": self.passes.rows_bytes(info.width, info.height)}
         # halves whose passes read a view of the frame (DeviceSamples.view) are read in place;
         # the others from copies (safeguard_split): a full read and write of their fields
         self.views = bool(views) and not is_box and self.half_a.sample_views and \
@@ -366,7 +323,7 @@ class Safeguarded(Pipeline):
         def run(queue, f, wait_for):
             b = f.buffers
             m = b["m"] if self.mode != MODE_BOX else b["box"]
-            return self.passes.run_blend(queue, b["stats"], b["rows3"], b["rows7"], b["box"], m,
+            return self.passes.run_blend(queue, b["stats"], b["rows"], b["box"], m,
                                          b["out"], b["error"], f.width, f.height, self.mode, 1,
                                          wait_for)
         return run

@@ -1,0 +1,98 @@
+"""The safeguard's kernels (``kernels/safeguard.cl``) and their buffers' layout: the pixel
+statistics as four planes with three padding columns on each side, the windowed sums' row
+segments as eight planes, and ``SG_VW`` pixels of a row a work-item in the window passes.
+
+Why planes and vectors: PoCL 3.1 vectorises a kernel across work-items only where its body
+holds no vector-typed value, and LLVM's SLP pass makes such values from a window's adjacent
+loads, so the one-pixel-a-work-item window passes ran scalar (PoCL's remarks,
+``POCL_VECTORIZER_REMARKS=1``: "instruction return type cannot be vectorized"). Sixteen
+pixels a work-item as ``float16`` read each plane with contiguous vector loads:
+``safeguard_rows`` at 1280x720 on a 2-core Xeon went from 10.3 to 0.9 ms, the same values
+bit for bit. A GPU runs one pixel a work-item (``SG_VW = 1``), as before.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from clrecon.core.device import get_kernel
+
+#: the statistics' planes: d2, vb, vm and the exponent
+STAT_PLANES = 4
+#: the row segments' planes: vb3, vm3, e3, ee3 (3 wide) and e7, vb7, e3max, e7max (7 wide)
+ROW_PLANES = 8
+#: padding columns on each side of the statistics' planes (the 7-wide window's reach)
+PAD = 3
+
+
+def halves(spp: int) -> tuple[int, int]:
+    """The two halves' sample counts: ``spp // 2`` and the rest."""
+    return spp // 2, spp - spp // 2
+
+
+def vector_width(context: cl.Context) -> int:
+    """Pixels a work-item of the window passes: 16 on a CPU (PoCL and Intel's runtime vectorise
+    the explicit ``float16``), 1 elsewhere."""
+    return 16 if all(d.type & cl.device_type.CPU for d in context.devices) else 1
+
+
+class SafeguardPasses:
+    """The four kernels of ``kernels/safeguard.cl``, built for this context's vector width."""
+
+    def __init__(self, context: cl.Context, vw: int | None = None):
+        """``vw``: the vector width (1, 4, 8 or 16; default :func:`vector_width`)."""
+        self.vw = vector_width(context) if vw is None else int(vw)
+        if self.vw not in (1, 4, 8, 16):
+            raise ValueError(f"safeguard: vector width {vw} is not 1, 4, 8 or 16")
+        defines = {"SG_VW": self.vw}
+        self.split = get_kernel(context, "safeguard", "safeguard_split", defines)
+        self.stats = get_kernel(context, "safeguard", "safeguard_stats", defines)
+        self.rows = get_kernel(context, "safeguard", "safeguard_rows", defines)
+        self.blend = get_kernel(context, "safeguard", "safeguard_blend", defines)
+
+    # -- layout ------------------------------------------------------------------------------
+    def rows_pitch(self, width: int) -> int:
+        """Floats a row of each row-segment plane: the width rounded up to the vector width."""
+        return -(-int(width) // self.vw) * self.vw
+
+    def stats_pitch(self, width: int) -> int:
+        """Floats a row of each statistics plane: the rows' pitch and both paddings (a
+        work-item's window reads columns x0 .. x0 + SG_VW + 5)."""
+        return self.rows_pitch(width) + 2 * PAD
+
+    def stats_bytes(self, width: int, height: int) -> int:
+        return STAT_PLANES * self.stats_pitch(width) * int(height) * 4
+
+    def rows_bytes(self, width: int, height: int) -> int:
+        return ROW_PLANES * self.rows_pitch(width) * int(height) * 4
+
+    # -- launches ----------------------------------------------------------------------------
+    def split_field(self, queue, src, dst_a, dst_b, pixels, spp, width, wait_for=None):
+        ha, _ = halves(spp)
+        self.split.set_args(src, dst_a, dst_b, np.int32(pixels), np.int32(spp), np.int32(ha),
+                            np.int32(width))
+        return cl.enqueue_nd_range_kernel(queue, self.split, (pixels,), None,
+                                          wait_for=wait_for)
+
+    def run_stats(self, queue, color, m, ma, mb, box, stats, w, h, spp, has_method,
+                  wait_for=None):
+        """has_method: 0 box alone, 1 with the method's image m, 2 m written as the halves'
+        mean. One work-item per column of the planes (the padding's too)."""
+        ha, _ = halves(spp)
+        sp = self.stats_pitch(w)
+        self.stats.set_args(color, m, ma, mb, box, stats, np.int32(w), np.int32(h),
+                            np.int32(spp), np.int32(ha), np.int32(has_method), np.int32(sp))
+        return cl.enqueue_nd_range_kernel(queue, self.stats, (sp, h), None, wait_for=wait_for)
+
+    def run_blend(self, queue, stats, rows, box, m, out, error, w, h, mode, write_error,
+                  wait_for=None):
+        """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
+        ("safeguard_blend", ev)]."""
+        sp, rp = self.stats_pitch(w), self.rows_pitch(w)
+        items = (rp // self.vw, h)
+        self.rows.set_args(stats, rows, np.int32(w), np.int32(h), np.int32(sp), np.int32(rp))
+        ev = cl.enqueue_nd_range_kernel(queue, self.rows, items, None, wait_for=wait_for)
+        self.blend.set_args(rows, box, m, out, error, np.int32(w), np.int32(h), np.int32(rp),
+                            np.int32(mode), np.int32(write_error))
+        return [("safeguard_rows", ev), ("safeguard_blend", cl.enqueue_nd_range_kernel(
+            queue, self.blend, items, None, wait_for=[ev]))]
