@@ -61,6 +61,14 @@ inline float recursive_gamma(float v)
     return v > 1e-6f ? ((v + 1.0f) - sqrt(2.0f * v + 1.0f)) / v : 0.0f;
 }
 
+#ifndef FR_VW
+#define FR_VW 1  /* grid lines a work-item of filter_sheared_recursive */
+#endif
+#ifndef FR_CH
+#define FR_CH NCH  /* channels filtered at a time by the vector kernel (divides NCH) */
+#endif
+
+#if FR_VW == 1
 __kernel void filter_sheared_recursive(__global const float *params, __global float *grids)
 {
     const int line = get_global_id(0), slot = get_global_id(1);
@@ -92,6 +100,85 @@ __kernel void filter_sheared_recursive(__global const float *params, __global fl
         }
     }
 }
+
+#else
+/* FR_VW lines a work-item (a CPU: PoCL vectorises no kernel that holds vector values, and a
+ * line's recursion is a serial chain): lines line0 .. line0 + FR_VW - 1 of every channel
+ * are gathered once into a private array, lane l holding line l (lines past dim repeat the
+ * last one and are not stored back), filtered there as FR_VW-wide vectors with the NCH
+ * channels' chains side by side, and written back. Axis 1's lines are columns, adjacent in
+ * memory: a full set of them moves as vector loads and stores. */
+#define FR_CAT_(a, b) a##b
+#define FR_CAT(a, b) FR_CAT_(a, b)
+typedef FR_CAT(float, FR_VW) frvec;
+#define FR_VLOAD(i, p) FR_CAT(vload, FR_VW)(i, p)
+#define FR_VSTORE(v, i, p) FR_CAT(vstore, FR_VW)(v, i, p)
+
+__kernel SCALAR_WORK_ITEMS
+void filter_sheared_recursive(__global const float *params, __global float *grids)
+{
+    const int line0 = get_global_id(0) * FR_VW, slot = get_global_id(1);
+    __global const float *p = params + (size_t)slot * NPAR;
+    const int dim = (int)p[P_DIM];
+    if (line0 >= dim)
+        return;
+    const int ax1 = p[P_AXIS] != 0.0f;
+    const int along = ax1 ? dim : 1, across = ax1 ? 1 : dim;
+    const int nl = min(FR_VW, dim - line0);
+    const int full = ax1 && nl == FR_VW;
+    const float gm = recursive_gamma(sampled_gauss_var(p[P_SHU]) / RECURSIONS);
+    const float a = 1.0f - gm;
+    __global float *base = grids + (size_t)slot * NCH * DMAX * DMAX + (size_t)line0 * across;
+    /* FR_CH channels at a time, their chains side by side (a divisor of NCH: the host keeps
+     * the array within what PoCL's worker threads hold) */
+    float v[FR_CH * DMAX * FR_VW];   /* (channel, element, lane) */
+    for (int c0 = 0; c0 < NCH; c0 += FR_CH) {
+        for (int c = 0; c < FR_CH; ++c) {
+            __global const float *r = base + (c0 + c) * DMAX * DMAX;
+            float *o = v + c * DMAX * FR_VW;
+            if (full) {
+                for (int i = 0; i < dim; ++i)
+                    FR_VSTORE(FR_VLOAD(0, r + i * dim), i, o);
+            } else {
+                for (int i = 0; i < dim; ++i)
+                    for (int l = 0; l < FR_VW; ++l)
+                        o[i * FR_VW + l] = r[i * along + min(l, nl - 1) * across];
+            }
+        }
+        for (int n = 0; n < RECURSIONS; ++n) {
+            frvec y[FR_CH];
+            for (int c = 0; c < FR_CH; ++c)
+                y[c] = (frvec)(0.0f);
+            for (int i = 0; i < dim; ++i) {
+                for (int c = 0; c < FR_CH; ++c) {
+                    y[c] = a * FR_VLOAD(c * DMAX + i, v) + gm * y[c];
+                    FR_VSTORE(y[c], c * DMAX + i, v);
+                }
+            }
+            for (int c = 0; c < FR_CH; ++c)
+                y[c] = (frvec)(0.0f);
+            for (int i = dim - 1; i >= 0; --i) {
+                for (int c = 0; c < FR_CH; ++c) {
+                    y[c] = a * FR_VLOAD(c * DMAX + i, v) + gm * y[c];
+                    FR_VSTORE(y[c], c * DMAX + i, v);
+                }
+            }
+        }
+        for (int c = 0; c < FR_CH; ++c) {
+            __global float *r = base + (c0 + c) * DMAX * DMAX;
+            const float *o = v + c * DMAX * FR_VW;
+            if (full) {
+                for (int i = 0; i < dim; ++i)
+                    FR_VSTORE(FR_VLOAD(i, o), 0, r + i * dim);
+            } else {
+                for (int i = 0; i < dim; ++i)
+                    for (int l = 0; l < nl; ++l)
+                        r[i * along + l * across] = o[i * FR_VW + l];
+            }
+        }
+    }
+}
+#endif
 
 /* Taps of one output along the recursive axis, lane by lane (the vector path's edge case):
  * adds the tap at (u, w) with fraction f and weight wk to lane l of acc if it lies inside the

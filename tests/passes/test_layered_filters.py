@@ -13,7 +13,7 @@ from clrecon.methods.layered import layout as geom
 from clrecon.methods.layered import reference as ref
 from clrecon.methods.layered.filter_mip import FilterMip, atlas_layout
 from clrecon.methods.layered.filter_rotated import FilterRotated
-from clrecon.methods.layered.filter_sheared import FilterSheared
+from clrecon.methods.layered.filter_sheared import FilterSheared, recursive_channels
 from clrecon.methods.layered.passes import local_for
 from clrecon.methods.layered.reference_filters import mip_pyramid
 
@@ -26,29 +26,49 @@ def inputs(rng, layout=LAYOUT):
     return params, grids
 
 
-def test_filter_sheared_matches_reference(device, rng):
-    params, grids = inputs(rng)
+@pytest.mark.parametrize("lines,gmax", [(1, 8), (4, 8), (8, 8), (8, 72)])
+def test_filter_sheared_matches_reference(device, rng, lines, gmax):
+    """Both passes against the reference, with the recursive filter run 1, 4 or 8 grid lines
+    a work-item (the vector kernel's lanes; grids whose side is no multiple of the width
+    leave a partial set of lanes), and with a guard band so wide (DMAX 160) that the vector
+    kernel filters one channel at a time."""
+    layout = geom.Layout(**{**LAYOUT.__dict__, "gmax": gmax})
+    params, grids = inputs(rng, layout)
     used = params[..., geom.P_DIM] > 0
     # both decompositions (the kernel's float4 lanes run along u or w), fine and coarse grids
+    # (the wide guard band's frame plans one scale)
     assert set(params[..., geom.P_AXIS][used].tolist()) == {0.0, 1.0}
-    assert len(set(params[..., geom.P_SCALE][used].tolist())) > 1
+    assert len(set(params[..., geom.P_SCALE][used].tolist())) > (1 if gmax == 8 else 0)
+    dims = set(params[..., geom.P_DIM][used].astype(int).tolist())
+    if lines > 1:
+        assert any(d % lines for d in dims), dims  # a partial set of lanes
+        assert any(d > lines for d in dims), dims  # more than one work-item a grid
     q = device.queue
     nslots = params.shape[0] * params.shape[1]
-    fshape = params.shape[:2] + (geom.NCH, LAYOUT.filtered_side ** 2)
+    fshape = params.shape[:2] + (geom.NCH, layout.filtered_side ** 2)
     d_grids, filtered = to_device(q, grids), empty(q, fshape)
-    fs = FilterSheared(device.context, LAYOUT)
+    fs = FilterSheared(device.context, layout, lines=lines)
+    assert fs.lines == lines
+    channels = recursive_channels(layout.dmax, lines)
+    assert channels == (1 if gmax == 72 else geom.NCH)
     ev = fs(q, to_device(q, params), d_grids, filtered, nslots)
     got_x = read(q, d_grids, grids.shape, [ev])
     got = read(q, filtered, fshape, [ev])
     p64 = params.astype(np.float64)
     want_x = ref.filter_sheared_x(p64, grids)
-    want = ref.filter_sheared_y(p64, want_x, LAYOUT)
+    want = ref.filter_sheared_y(p64, want_x, layout)
     assert_close(np.concatenate([g.ravel() for g in ref.used_grid(got_x, params)]),
                  np.concatenate([g.ravel() for g in ref.used_grid(want_x, params)]),
                  rtol=1e-4, atol=1e-4, what="sheared x")
-    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, LAYOUT)]),
-                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, LAYOUT)]),
+    assert_close(np.concatenate([g.ravel() for g in ref.used_filtered(got, params, layout)]),
+                 np.concatenate([g.ravel() for g in ref.used_filtered(want, params, layout)]),
                  rtol=1e-4, atol=1e-4, what="sheared y")
+
+
+def test_filter_sheared_refuses_other_line_counts(device):
+    for lines in (3, 16):
+        with pytest.raises(ValueError, match=f"{lines} lines a work-item"):
+            FilterSheared(device.context, LAYOUT, lines=lines)
 
 
 def crafted_slots(rng, layout, fields, slots):
