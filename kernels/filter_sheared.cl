@@ -12,9 +12,9 @@
  * The two passes are named for what they do, which P_AXIS does not change (as
  * filter_sheared_x / _y they ran along y and x with axis 1):
  * filter_sheared_recursive: the recursive filter along the recursive axis (x with axis 0, y
- *   with axis 1), in place on the grids. One work-item per (grid line, slot), range (DMAX,
- *   tiles * MAXP); the line is row (axis 0) or column (axis 1) `line`; lines of empty slots
- *   and lines >= D return. On every channel: forward
+ *   with axis 1), in place on the grids. One work-item per FR_VW grid lines of a slot, range
+ *   (ceil(DMAX / FR_VW), tiles * MAXP); a line is row (axis 0) or column (axis 1) `line`;
+ *   lines of empty slots and lines >= D return. On every channel: forward
  *   y[i] = (1 - gamma) x[i] + gamma y[i - 1] (y[-1] = 0), then the same backward, RECURSIONS
  *   times. gamma gives each pair the variance
  *   2 gamma / (1 - gamma)^2 = v / RECURSIONS, v the variance of the Gaussian of std s_u
@@ -22,8 +22,8 @@
  *   s_u^2, for the in-focus 0.33 px about 0.02). Eq. 10's gamma = exp(-sqrt2 / s_u) is the
  *   large-s_u limit.
  * filter_sheared_gauss: the Gaussian along the sheared axis e, from the grids into the
- *   filtered images. One work-item per four filtered pixels (i .. i + 3, j) in [-1, T/s]^2
- *   of a slot, range (ceil(FT / 4), FT, tiles * MAXP), computed as float4s:
+ *   filtered images. One work-item per GS_VW filtered pixels (i .. i + GS_VW - 1, j) in
+ *   [-1, T/s]^2 of a slot, range (ceil(FT / GS_VW), FT, tiles * MAXP), computed as vectors:
  *   out = sum_k exp(-k^2 / (2 s_v^2)) grid((i, j) + G + k e),
  *   e = (beta, 1) or (1, beta), k = -ceil(3 s_v) .. ceil(3 s_v), linear interpolation along
  *   the recursive axis, taps outside the grid dropped. Unnormalised: composite divides the
@@ -31,7 +31,8 @@
  *   grids     float (tiles, MAXP, NCH, DMAX, DMAX), row stride D (reproject's layout)
  *   filtered  float (tiles, MAXP, NCH, FT, FT), index (j + 1) * FT + (i + 1)
  *   params    float (tiles, MAXP, NPAR) from partition_setup (P_SHU, P_SHV, P_BETA, P_AXIS)
- * Compile-time: TILE, MAXP, GMAX, RECURSIONS. The local size of filter_sheared_gauss is a
+ * Compile-time: TILE, MAXP, GMAX, RECURSIONS, FR_VW (1, 4, 8), FR_CH, GS_VW (4, 8, 16).
+ * The local size of filter_sheared_gauss is a
  * launch parameter only (tuned); filter_sheared_recursive's is the runtime's.
  */
 #include "layered.h"
@@ -60,6 +61,9 @@ inline float recursive_gamma(float v)
 {
     return v > 1e-6f ? ((v + 1.0f) - sqrt(2.0f * v + 1.0f)) / v : 0.0f;
 }
+
+#define FR_CAT_(a, b) a##b
+#define FR_CAT(a, b) FR_CAT_(a, b)
 
 #ifndef FR_VW
 #define FR_VW 1  /* grid lines a work-item of filter_sheared_recursive */
@@ -108,8 +112,6 @@ __kernel void filter_sheared_recursive(__global const float *params, __global fl
  * last one and are not stored back), filtered there as FR_VW-wide vectors with the NCH
  * channels' chains side by side, and written back. Axis 1's lines are columns, adjacent in
  * memory: a full set of them moves as vector loads and stores. */
-#define FR_CAT_(a, b) a##b
-#define FR_CAT(a, b) FR_CAT_(a, b)
 typedef FR_CAT(float, FR_VW) frvec;
 #define FR_VLOAD(i, p) FR_CAT(vload, FR_VW)(i, p)
 #define FR_VSTORE(v, i, p) FR_CAT(vstore, FR_VW)(v, i, p)
@@ -180,32 +182,24 @@ void filter_sheared_recursive(__global const float *params, __global float *grid
 }
 #endif
 
-/* Taps of one output along the recursive axis, lane by lane (the vector path's edge case):
- * adds the tap at (u, w) with fraction f and weight wk to lane l of acc if it lies inside the
- * grid, with the scalar rule (u < -1 or u >= dim, or w outside: dropped). */
-#define EDGE_LANE(l, uu, ww)                                                              \
-    do {                                                                                  \
-        const int u_ = (uu), w_ = (ww);                                                   \
-        if (w_ >= 0 && w_ < dim && u_ >= -1 && u_ < dim) {                                \
-            const float wa_ = u_ >= 0 ? wk * (1.0f - f) : 0.0f;                           \
-            const float wb_ = u_ + 1 < dim ? wk * f : 0.0f;                               \
-            for (int c = 0; c < NCH; ++c) {                                               \
-                __global const float *r_ = grid + c * DMAX * DMAX + w_ * sw;              \
-                acc[c].s##l += (wa_ != 0.0f ? wa_ * r_[u_ * su] : 0.0f)                   \
-                               + (wb_ != 0.0f ? wb_ * r_[(u_ + 1) * su] : 0.0f);          \
-            }                                                                             \
-        }                                                                                 \
-    } while (0)
+#ifndef GS_VW
+#define GS_VW 4  /* outputs a work-item of filter_sheared_gauss: 4, 8 or 16 */
+#endif
+typedef FR_CAT(float, GS_VW) gsvec;
+#define GS_VLOAD(i, p) FR_CAT(vload, GS_VW)(i, p)
+#define GS_VSTORE(v, i, p) FR_CAT(vstore, GS_VW)(v, i, p)
 
 __kernel SCALAR_WORK_ITEMS
 void filter_sheared_gauss(__global const float *params, __global const float *grids,
                           __global float *filtered)
 {
-    /* four outputs (i0 .. i0 + 3, j) per work-item, as one float4 per channel: along x they
-     * are consecutive in the grid for either axis (axis 0: along u, axis 1: along w), so a
-     * tap is two vector loads per channel where all four lanes lie inside the grid */
+    /* GS_VW outputs (i0 .. i0 + GS_VW - 1, j) per work-item, as one vector per channel: along
+     * x they are consecutive in the grid for either axis (axis 0: along u, axis 1: along w),
+     * so a tap is two vector loads per channel where all the lanes lie inside the grid; taps
+     * where some lane does not go lane by lane into `edge` (the scalar rule: u < -1 or
+     * u >= dim, or w outside, dropped) */
     int i0, j, slot;
-    __global const float *p = layered_filtered_item(params, 4, &i0, &j, &slot);
+    __global const float *p = layered_filtered_item(params, GS_VW, &i0, &j, &slot);
     if (!p)
         return;
     const int dim = (int)p[P_DIM], side = TILE / (int)p[P_SCALE];
@@ -215,11 +209,15 @@ void filter_sheared_gauss(__global const float *params, __global const float *gr
     const int ax = p[P_AXIS] != 0.0f;
     const int u0 = (ax ? j : i0) + g, w0 = (ax ? i0 : j) + g;   /* of lane 0 */
     const int su = ax ? dim : 1, sw = ax ? 1 : dim;   /* strides of u and w in the grid */
+    const int lu = ax ? 0 : 1, lw = ax ? 1 : 0;       /* a lane's step in u and w */
     const int kmax = min((int)ceil(3.0f * sv), dim);
     const float inv = -0.5f / (sv * sv);
-    float4 acc[NCH];
+    gsvec acc[NCH];
+    float edge[NCH * GS_VW];
     for (int c = 0; c < NCH; ++c)
-        acc[c] = (float4)(0.0f);
+        acc[c] = (gsvec)(0.0f);
+    for (int e = 0; e < NCH * GS_VW; ++e)
+        edge[e] = 0.0f;
     __global const float *grid = grids + (size_t)slot * NCH * DMAX * DMAX;
     /* the taps exp(inv k^2) by recurrence: w_{k+1} = w_k r_k, r_{k+1} = r_k q, q = exp(2 inv),
      * so two exp per pixel instead of one per tap (relative error < 1e-5 over 2 kmax steps) */
@@ -232,56 +230,52 @@ void filter_sheared_gauss(__global const float *params, __global const float *gr
         const float fu = floor(uf);
         const float f = uf - fu;
         const int u = (int)fu;
-        if (ax == 0) {
-            /* lanes at (u + l, w): w shared */
-            if (w < 0 || w >= dim)
-                continue;
-            if (u >= 0 && u + 4 < dim) {
-                const float wa = wk * (1.0f - f), wb = wk * f;
-                for (int c = 0; c < NCH; ++c) {
-                    __global const float *r = grid + c * DMAX * DMAX + w * dim + u;
-                    acc[c] += wa * vload4(0, r) + wb * vload4(0, r + 1);
-                }
-            } else {
-                EDGE_LANE(0, u, w);
-                EDGE_LANE(1, u + 1, w);
-                EDGE_LANE(2, u + 2, w);
-                EDGE_LANE(3, u + 3, w);
+        if (ax == 0 && u >= 0 && u + GS_VW < dim && w >= 0 && w < dim) {
+            /* lanes at (u + l, w) */
+            const float wa = wk * (1.0f - f), wb = wk * f;
+            for (int c = 0; c < NCH; ++c) {
+                __global const float *r = grid + c * DMAX * DMAX + w * dim + u;
+                acc[c] += wa * GS_VLOAD(0, r) + wb * GS_VLOAD(0, r + 1);
+            }
+        } else if (ax == 1 && u >= -1 && u < dim && w >= 0 && w + GS_VW - 1 < dim) {
+            /* lanes at (u, w + l) */
+            const float wa = u >= 0 ? wk * (1.0f - f) : 0.0f;
+            const float wb = u + 1 < dim ? wk * f : 0.0f;
+            for (int c = 0; c < NCH; ++c) {
+                __global const float *r = grid + c * DMAX * DMAX + w;
+                gsvec v = (gsvec)(0.0f);
+                if (wa != 0.0f)
+                    v = wa * GS_VLOAD(0, r + u * dim);
+                if (wb != 0.0f)
+                    v += wb * GS_VLOAD(0, r + (u + 1) * dim);
+                acc[c] += v;
             }
         } else {
-            /* lanes at (u, w + l): u shared */
-            if (u < -1 || u >= dim)
-                continue;
-            if (w >= 0 && w + 3 < dim) {
-                const float wa = u >= 0 ? wk * (1.0f - f) : 0.0f;
-                const float wb = u + 1 < dim ? wk * f : 0.0f;
+            for (int l = 0; l < GS_VW; ++l) {
+                const int ul = u + l * lu, wl = w + l * lw;
+                if (wl < 0 || wl >= dim || ul < -1 || ul >= dim)
+                    continue;
+                const float wa = ul >= 0 ? wk * (1.0f - f) : 0.0f;
+                const float wb = ul + 1 < dim ? wk * f : 0.0f;
                 for (int c = 0; c < NCH; ++c) {
-                    __global const float *r = grid + c * DMAX * DMAX + w;
-                    float4 v = (float4)(0.0f);
-                    if (wa != 0.0f)
-                        v = wa * vload4(0, r + u * dim);
-                    if (wb != 0.0f)
-                        v += wb * vload4(0, r + (u + 1) * dim);
-                    acc[c] += v;
+                    __global const float *r = grid + c * DMAX * DMAX + wl * sw;
+                    edge[c * GS_VW + l] += (wa != 0.0f ? wa * r[ul * su] : 0.0f)
+                                           + (wb != 0.0f ? wb * r[(ul + 1) * su] : 0.0f);
                 }
-            } else {
-                EDGE_LANE(0, u, w);
-                EDGE_LANE(1, u, w + 1);
-                EDGE_LANE(2, u, w + 2);
-                EDGE_LANE(3, u, w + 3);
             }
         }
     }
     __global float *out = layered_filtered_at(filtered, slot, i0, j);
-    const int nl = min(4, side - i0 + 1);   /* lanes with i <= side */
+    const int nl = min(GS_VW, side - i0 + 1);   /* lanes with i <= side */
     for (int c = 0; c < NCH; ++c) {
+        const gsvec v = acc[c] + GS_VLOAD(c, edge);
         __global float *o = out + c * FT * FT;
-        o[0] = acc[c].s0;
-        if (nl > 1)
-            o[1] = acc[c].s1;
-        if (nl > 2)
-            o[2] = acc[c].s2;
-        if (nl > 3)
-            o[3] = acc[c].s3;
+        if (nl == GS_VW) {
+            GS_VSTORE(v, 0, o);
+        } else {
+            GS_VSTORE(v, c, edge);
+            for (int l = 0; l < nl; ++l)
+                o[l] = edge[c * GS_VW + l];
+        }
     }
 }

@@ -26,12 +26,13 @@ def inputs(rng, layout=LAYOUT):
     return params, grids
 
 
-@pytest.mark.parametrize("lines,gmax", [(1, 8), (4, 8), (8, 8), (8, 72)])
-def test_filter_sheared_matches_reference(device, rng, lines, gmax):
+@pytest.mark.parametrize("lines,gmax,width", [(1, 8, 4), (4, 8, 8), (8, 8, 16), (8, 8, 4),
+                                              (8, 72, 8)])
+def test_filter_sheared_matches_reference(device, rng, lines, gmax, width):
     """Both passes against the reference, with the recursive filter run 1, 4 or 8 grid lines
     a work-item (the vector kernel's lanes; grids whose side is no multiple of the width
-    leave a partial set of lanes), and with a guard band so wide (DMAX 160) that the vector
-    kernel filters one channel at a time."""
+    leave a partial set of lanes) and the Gaussian 4, 8 or 16 outputs a work-item, and with
+    a guard band so wide (DMAX 160) that the vector kernel filters one channel at a time."""
     layout = geom.Layout(**{**LAYOUT.__dict__, "gmax": gmax})
     params, grids = inputs(rng, layout)
     used = params[..., geom.P_DIM] > 0
@@ -47,8 +48,8 @@ def test_filter_sheared_matches_reference(device, rng, lines, gmax):
     nslots = params.shape[0] * params.shape[1]
     fshape = params.shape[:2] + (geom.NCH, layout.filtered_side ** 2)
     d_grids, filtered = to_device(q, grids), empty(q, fshape)
-    fs = FilterSheared(device.context, layout, lines=lines)
-    assert fs.lines == lines
+    fs = FilterSheared(device.context, layout, lines=lines, width=width)
+    assert (fs.lines, fs.width) == (lines, width)
     channels = recursive_channels(layout.dmax, lines)
     assert channels == (1 if gmax == 72 else geom.NCH)
     ev = fs(q, to_device(q, params), d_grids, filtered, nslots)
@@ -69,6 +70,9 @@ def test_filter_sheared_refuses_other_line_counts(device):
     for lines in (3, 16):
         with pytest.raises(ValueError, match=f"{lines} lines a work-item"):
             FilterSheared(device.context, LAYOUT, lines=lines)
+    for width in (1, 6, 32):
+        with pytest.raises(ValueError, match=f"{width} outputs a work-item"):
+            FilterSheared(device.context, LAYOUT, width=width)
 
 
 def crafted_slots(rng, layout, fields, slots):
@@ -94,11 +98,12 @@ def assert_filtered_close(got, want, params, layout, tol, what, relative=False):
     assert_close(g / scale, w / scale, rtol=tol, atol=tol, what=what)
 
 
+@pytest.mark.parametrize("width", [4, 8, 16])
 @pytest.mark.parametrize("axis", [0, 1])
 @pytest.mark.parametrize("beta", [-2.7, 0.4, 3.1])
-def test_filter_sheared_y_where_shear_leaves_the_grid(device, rng, axis, beta):
+def test_filter_sheared_y_where_shear_leaves_the_grid(device, rng, axis, beta, width):
     """A steep shear and a thin guard band move taps past every edge of the grid, where the
-    kernel's float4 lanes fall back to lane-by-lane taps; the result must still be the
+    kernel's vector lanes fall back to lane-by-lane taps; the result must still be the
     reference's (taps outside the grid dropped)."""
     layout = LAYOUT
     params, grids = crafted_slots(rng, layout, (geom.P_SHV, geom.P_BETA, geom.P_AXIS),
@@ -106,11 +111,11 @@ def test_filter_sheared_y_where_shear_leaves_the_grid(device, rng, axis, beta):
     q = device.queue
     fshape = params.shape[:2] + (geom.NCH, layout.filtered_side ** 2)
     filtered = empty(q, fshape)
-    fs = FilterSheared(device.context, layout)
+    fs = FilterSheared(device.context, layout, width=width)
     d_params, d_grids = to_device(q, params), to_device(q, grids)  # alive until read
     fs.gauss.set_args(d_params, d_grids, filtered)
     side = layout.filtered_side
-    gsz, loc = local_for(fs.local, (-(-side // 4), side, params.shape[0] * layout.maxp))
+    gsz, loc = local_for(fs.local, (-(-side // width), side, params.shape[0] * layout.maxp))
     ev = cl.enqueue_nd_range_kernel(q, fs.gauss, gsz, loc)
     got = read(q, filtered, fshape, [ev])
     want = ref.filter_sheared_y(params.astype(np.float64), grids.astype(np.float64), layout)

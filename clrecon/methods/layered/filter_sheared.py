@@ -21,6 +21,16 @@ def recursive_lines(context: cl.Context) -> int:
     return 8 if all(d.type & cl.device_type.CPU for d in context.devices) else 1
 
 
+def gauss_width(context: cl.Context) -> int:
+    """Outputs a work-item of ``filter_sheared_gauss``: 8 on a CPU, 4 elsewhere.
+
+    A tap's per-lane work is two loads and two multiply-adds a channel; its weight, shear and
+    bounds are shared by the work-item's lanes, so wider work-items spread them thinner (deep
+    1280x720 8 spp, the halves' Gaussian 45-49 -> 30-34 ms on PoCL with 8; 16 lanes: 74-80 ms,
+    more of the taps at a grid's edge go lane by lane)."""
+    return 8 if all(d.type & cl.device_type.CPU for d in context.devices) else 4
+
+
 #: bytes of the private array a work-item of the vector kernel holds (FR_CH channels of
 #: DMAX x lines floats) at most: the size measured to run on PoCL 3.1 (the default layout,
 #: 8 lines, all channels); wider guard bands filter fewer channels at a time
@@ -43,21 +53,26 @@ class FilterSheared:
                       rtol=1e-4, atol=1e-5)
 
     def __init__(self, context: cl.Context, layout: Layout, recursions: int = 3,
-                 local: LocalSize | None = None, lines: int | None = None):
+                 local: LocalSize | None = None, lines: int | None = None,
+                 width: int | None = None):
         """``lines``: grid lines a work-item of the recursive filter (1, 4 or 8; default 8 on
-        a CPU, 1 elsewhere)."""
+        a CPU, 1 elsewhere); ``width``: outputs a work-item of the Gaussian (4, 8 or 16;
+        default :func:`gauss_width`)."""
         self.layout = layout
         self.local = local or LocalSize(8, 8)
         self.lines = recursive_lines(context) if lines is None else int(lines)
         if self.lines not in (1, 4, 8):
             raise ValueError(f"filter_sheared: {lines} lines a work-item is not 1, 4 or 8")
+        self.width = gauss_width(context) if width is None else int(width)
+        if self.width not in (4, 8, 16):
+            raise ValueError(f"filter_sheared: {width} outputs a work-item is not 4, 8 or 16")
         r = {"RECURSIONS": int(recursions)}
         # the local size is a launch parameter only: every configuration shares one program
         self.recursive = layered_kernel(context, "filter_sheared", "filter_sheared_recursive",
                                         layout, None, FR_VW=self.lines,
                                         FR_CH=recursive_channels(layout.dmax, self.lines), **r)
         self.gauss = layered_kernel(context, "filter_sheared", "filter_sheared_gauss", layout, None,
-                                    **r)
+                                    GS_VW=self.width, **r)
         self.kernel = self.gauss  # the one the local size tunes
         self.events: list = []
 
@@ -69,7 +84,7 @@ class FilterSheared:
                                         wait_for=wait_for)
         self.gauss.set_args(params, grids, filtered)
         side = self.layout.filtered_side
-        g, loc = local_for(self.local, (-(-side // 4), side, nslots))
+        g, loc = local_for(self.local, (-(-side // self.width), side, nslots))
         eg = cl.enqueue_nd_range_kernel(queue, self.gauss, g, loc, wait_for=[er])
         self.events = [("filter_sheared_recursive", er), ("filter_sheared_gauss", eg)]
         return eg
