@@ -12,13 +12,15 @@ from clrecon.methods.layered import reference as ref
 from clrecon.methods.layered.composite import LayeredComposite
 
 
-@pytest.mark.parametrize("tile", [16, 2], ids=["float4-lanes", "one-pixel"])
+@pytest.mark.parametrize("tile,width", [(16, 4), (16, 8), (16, 16), (8, 8), (2, 1)],
+                         ids=["float4-lanes", "float8-lanes", "float16-lanes", "tile-8",
+                              "one-pixel"])
 @pytest.mark.parametrize("wide", [False, True], ids=["frame", "view"])
-def test_composite_matches_reference(device, rng, tile, wide):
-    """Four pixels per work-item (tiles >= 4; 19 px wide, so the last quad is partial) and
-    one per work-item (tile 2) give the reference's image; so does a frame that is samples
-    2 .. 2 + S - 1 of a buffer with S + 3 per pixel (a view, DeviceSamples.strided), read
-    where no layer covers (the pixel means)."""
+def test_composite_matches_reference(device, rng, tile, width, wide):
+    """4, 8 or 16 pixels per work-item (tiles >= 4; 19 px wide, so the last set of lanes is
+    partial) and one per work-item (tile 2) give the reference's image; so does a frame that
+    is samples 2 .. 2 + S - 1 of a buffer with S + 3 per pixel (a view,
+    DeviceSamples.strided), read where no layer covers (the pixel means)."""
     layout = geom.Layout(**{**LAYOUT.__dict__, "tile": tile})
     buf = frame(rng, h=35, w=19)
     params = params_of(buf, layout)
@@ -35,12 +37,23 @@ def test_composite_matches_reference(device, rng, tile, wide):
         stride, offset = s + 3, 2
     q = device.queue
     out = empty(q, (buf.height, buf.width, 3))
-    ev = LayeredComposite(device.context, layout)(
+    comp = LayeredComposite(device.context, layout, width=width)
+    assert comp.width == width
+    used = params[..., geom.P_DIM] > 0
+    assert len(set(params[..., geom.P_SCALE][used].tolist())) > 1  # bilinear reads too
+    ev = comp(
         q, to_device(q, color), to_device(q, params), to_device(q, filtered), buf.width,
         buf.height, out, sample_stride=stride, sample_offset=offset)
     got = read(q, out, (buf.height, buf.width, 3), [ev])
     want = ref.composite(buf.color, p64, filtered, layout)
     assert_close(got, want, rtol=1e-4, atol=1e-5, what="composite")
+
+
+def test_composite_refuses_widths_it_cannot_run(device):
+    for tile, width in [(16, 3), (16, 32), (8, 16), (2, 4)]:
+        layout = geom.Layout(**{**LAYOUT.__dict__, "tile": tile})
+        with pytest.raises(ValueError, match=f"{width} pixels a work-item with tile {tile}"):
+            LayeredComposite(device.context, layout, width=width)
 
 
 def test_front_to_back_blend():
