@@ -66,6 +66,36 @@ def test_filter_sheared_matches_reference(device, rng, lines, gmax, width):
                  rtol=1e-4, atol=1e-4, what="sheared y")
 
 
+def test_filter_sheared_at_a_production_layout(device, rng):
+    """The recursive filter's vector kernel at the default layout (DMAX 64: a 10 KB private
+    array a work-item at 8 lines) over 256 slots, a 256x256 frame's: the launch on which
+    PoCL 3.1, picking the local size itself (8 x 128), crashed inside the pipeline (here
+    alone it ran; the kernel now runs 1 x 1). Every tile's first slot holds a grid
+    (both axes, both scales); they must match the reference."""
+    layout = geom.Layout(tile=32, nbuckets=32, maxp=4, gmax=16, spp=8, has_motion=True,
+                         reach_max=96)
+    assert layout.dmax == 64
+    fields = (geom.P_SHU, geom.P_SHV, geom.P_BETA, geom.P_AXIS)
+    params, grids = crafted_slots(rng, layout, fields,
+                                  [(3.0, 1.5, 0.3, 0, 1, 16), (2.0, 1.0, -0.4, 1, 2, 9),
+                                   (0.7, 0.5, 0.0, 1, 1, 4), (5.0, 2.0, 0.1, 0, 1, 16)] * 16)
+    q = device.queue
+    nslots = params.shape[0] * params.shape[1]
+    assert nslots == 256
+    fshape = params.shape[:2] + (geom.NCH, layout.filtered_side ** 2)
+    d_params, d_grids = to_device(q, params), to_device(q, grids)
+    filtered = empty(q, fshape)
+    for lines in (1, 8):
+        cl.enqueue_copy(q, d_grids, grids)
+        fs = FilterSheared(device.context, layout, lines=lines)
+        ev = fs(q, d_params, d_grids, filtered, nslots)
+        got = read(q, filtered, fshape, [ev])
+        p64 = params.astype(np.float64)
+        want = ref.filter_sheared_y(p64, ref.filter_sheared_x(p64, grids), layout)
+        assert_filtered_close(got, want, params, layout, 1e-4, f"{lines} lines",
+                              relative=True)
+
+
 def test_filter_sheared_refuses_other_line_counts(device):
     for lines in (3, 16):
         with pytest.raises(ValueError, match=f"{lines} lines a work-item"):
@@ -77,10 +107,12 @@ def test_filter_sheared_refuses_other_line_counts(device):
 
 def crafted_slots(rng, layout, fields, slots):
     """Params with slot 0 of tile t set from ``slots[t]`` (values for ``fields``, plus scale
-    and guard last), its grid of random values; every other slot empty."""
+    and guard last; None: empty), its grid of random values; every other slot empty."""
     params = np.zeros((len(slots), layout.maxp, geom.NPAR), np.float32)
     grids = np.zeros(params.shape[:2] + (geom.NCH, layout.dmax ** 2), np.float32)
     for t, values in enumerate(slots):
+        if values is None:
+            continue
         p = params[t, 0]
         p[list(fields) + [geom.P_SCALE, geom.P_GUARD]] = values
         dim = layout.tile // int(p[geom.P_SCALE]) + 2 * int(p[geom.P_GUARD])

@@ -16,8 +16,10 @@ def recursive_lines(context: cl.Context) -> int:
     Each line's recursion is a serial chain, and PoCL 3.1 does not vectorise across
     work-items a kernel that holds vector values, so on a CPU a work-item runs 8 lines as the
     lanes of a ``float8`` (deep 1280x720 8 spp: 37 -> 20 ms for the halves' filter on PoCL,
-    86 -> 33 ms on Intel's runtime). 16 lines are no faster and are not offered: PoCL 3.1
-    crashes on them at 1280x720 (3680 slots; 960 run), even with one channel at a time."""
+    86 -> 33 ms on Intel's runtime). The vector kernel runs with a local size of 1 x 1: with
+    a NULL local size PoCL 3.1 picked 8 x 128 at 256x256 and crashed in the pipeline (a
+    10 KB private array a work-item; the same launch alone in a test ran), and 1 x 1 is as
+    fast. 16 lines are no faster and are not offered."""
     return 8 if all(d.type & cl.device_type.CPU for d in context.devices) else 1
 
 
@@ -80,7 +82,8 @@ class FilterSheared:
                  nslots: int, wait_for=None) -> cl.Event:
         self.recursive.set_args(params, grids)
         er = cl.enqueue_nd_range_kernel(queue, self.recursive,
-                                        (-(-self.layout.dmax // self.lines), nslots), None,
+                                        (-(-self.layout.dmax // self.lines), nslots),
+                                        None if self.lines == 1 else (1, 1),
                                         wait_for=wait_for)
         self.gauss.set_args(params, grids, filtered)
         side = self.layout.filtered_side
