@@ -18,7 +18,8 @@
  * elsewhere (the draw's scan reads them, and zeroes them as it draws). Sample k of the frame
  * (k = pixel SPP + i) is element pixel stride + offset + i.
  * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, and the per-level lists TR, TM, RL, ML
- * (floats, NLEV each; TR[NLEV - 1], TM[NLEV - 1] unused).
+ * (floats, NLEV each; TR[NLEV - 1], TM[NLEV - 1] unused); BIN_VW (1 or 8: the owner tiles'
+ * records 8 samples a step as float8 lanes, on CPUs).
  */
 #include "splat_mip.h"
 
@@ -106,6 +107,82 @@ __attribute__((always_inline)) inline int mip_record(const int k, MIP_BIN_ARGS, 
     return out ? -1 : (int)mip_index(lv, l, layer, qx, qy);
 }
 
+#ifndef BIN_VW
+#define BIN_VW 1  /* samples a step of the owner tiles' record loop: 1 or 8 (CPUs) */
+#endif
+#if BIN_VW == 8
+/* mip_record for the samples at elements k.s0 .. k.s7, as the lanes of float8s: the same
+ * expressions lane by lane (PoCL 3.1 leaves the scalar loop unvectorised: 4x the time of
+ * its loads); the level's int4 parameters are picked from glv, lv[0 .. NLEV - 1] read once */
+#define G8(p, k) ((float8)((p)[(k).s0], (p)[(k).s1], (p)[(k).s2], (p)[(k).s3], (p)[(k).s4], \
+                           (p)[(k).s5], (p)[(k).s6], (p)[(k).s7]))
+__attribute__((always_inline)) inline int8 mip_record8(
+    const int8 k, MIP_BIN_ARGS, const int4 *glv, float8 *r0, float8 *r1, float8 *r2,
+    float8 *r3, float8 *r4, float8 *r5, float8 *r6, float8 *r7, float8 *r8)
+{
+    const float8 z = G8(depth, k);
+    const int8 miss = isgreaterequal(z, (float8)(MISS_DEPTH));
+    const float8 coc = select(c0 / z + c1, (float8)(c1), miss);
+    const float8 r = fabs(coc);
+    float8 mx = (float8)(0.0f), my = (float8)(0.0f);
+#if HAS_MOTION
+    mx = G8(motion, 2 * k);
+    my = G8(motion, 2 * k + 1);
+#endif
+    const float8 len = sqrt(mx * mx + my * my);
+    int8 l = (int8)(0);
+    float8 rl = (float8)(mip_rl[0]), ml = (float8)(mip_ml[0]);
+    for (int j = 0; j + 1 < NLEV; ++j) {
+        const int8 up = isgreater(r, (float8)(mip_tr[j])) | isgreater(len, (float8)(mip_tm[j]));
+        l -= up;  /* up is -1 in a true lane */
+        rl = select(rl, (float8)(mip_rl[j + 1]), up);
+        ml = select(ml, (float8)(mip_ml[j + 1]), up);
+    }
+    const float8 s = convert_float8((int8)(1) << l), inv_s = 1.0f / s;
+    const float8 cs = select((float8)(1.0f), rl * s / r, isgreater(r * inv_s, rl));
+    const float8 ms = select((float8)(1.0f), ml * s / len, isgreater(len * inv_s, ml));
+    const float8 cc = coc * cs;
+    float8 cx = G8(position, 2 * k) - cc * G8(lens, 2 * k);
+    float8 cy = G8(position, 2 * k + 1) - cc * G8(lens, 2 * k + 1);
+#if HAS_MOTION
+    const float8 dt = (G8(time, k) - 0.5f) * ms;
+    cx -= dt * mx;
+    cy -= dt * my;
+#endif
+    const float8 inv = select(1.0f / z, (float8)(0.0f), miss);
+    /* the bounds as vectors: Oclgrind reads the scalars of clamp(int8, int, int) wrongly */
+    const int8 layer = clamp(convert_int8(floor((inv - inv_far) * layer_scale)), (int8)(0),
+                             (int8)(NLAYERS - 1));
+    cx *= inv_s;
+    cy *= inv_s;
+    const float8 fx = floor(cx), fy = floor(cy);
+    int8 gx = (int8)(glv[0].x), gy = (int8)(glv[0].y), gz = (int8)(glv[0].z),
+         gw = (int8)(glv[0].w);
+    for (int j = 1; j < NLEV; ++j) {
+        const int8 at = l == j;
+        gx = select(gx, (int8)(glv[j].x), at);
+        gy = select(gy, (int8)(glv[j].y), at);
+        gz = select(gz, (int8)(glv[j].z), at);
+        gw = select(gw, (int8)(glv[j].w), at);
+    }
+    const int8 qx = convert_int8(fx), qy = convert_int8(fy);
+    const int8 e = gw / 2;
+    const int8 out = (qx < e - gw) | (qy < e - gw) | (qx >= gy - gw - e) | (qy >= gz - gw - e);
+    const float w = 1.0f / (float)SPP;
+    const float8 wm = w * ms * inv_s;
+    *r0 = G8(color, 3 * k) * w;
+    *r1 = G8(color, 3 * k + 1) * w;
+    *r2 = G8(color, 3 * k + 2) * w;
+    *r3 = (float8)(w);
+    *r4 = r * cs * inv_s * w;
+    *r5 = mx * wm;
+    *r6 = my * wm;
+    *r7 = (cx - fx) * w;
+    *r8 = (cy - fy) * w;
+    return select(gx + (layer * gz + qy + gw) * gy + qx + gw, (int8)(-1), out);
+}
+#endif
+
 /* A record into bin idx: three float4 (rgb w, w), w (r, mx, my, 0) / s, w (fx, fy, 0, 0) */
 __attribute__((always_inline)) inline void mip_add1(__global float *dst, const float v,
                                                     const int atomic)
@@ -156,7 +233,8 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
 }
 
 #define ROW_MAX 512
-/* sample element k's record into slot j of the tiles' local arrays */
+/* sample element k's record into slot j of the tiles' local arrays (one sample; with
+ * BIN_VW == 8 the row's steps of 8 go through mip_record8 and this takes the tail) */
 #define MIP_RECORD_INTO(j, k) \
     do { \
         MIP_REC_VARS; \
@@ -171,7 +249,7 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
  * go into local memory in one loop over contiguous samples, which the compiler vectorises
  * (the same arithmetic interleaved with the adds ran ~10x slower on PoCL), then are added
  * in order, each run of records into one bin summed first: plain adds, a fixed order
- * (reproducible). */
+ * (reproducible). (PoCL 3.1 on AVX-512 hosts left that loop scalar: hence BIN_VW.) */
 __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int height,
                                   const int tile, const int k, const int phase_x,
                                   const int phase_y, __global uchar *flags)
@@ -184,14 +262,34 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
     if (x0 >= width || y0 >= height)
         return;
     const int row = (min(x0 + tile, width) - x0) * SPP;
+#if BIN_VW == 8
+    int4 glv[NLEV];
+    for (int j = 0; j < NLEV; ++j)
+        glv[j] = lv[j];
+    const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+#endif
     for (int y = y0; y < min(y0 + tile, height); ++y)
         for (int c = 0; c < row; c += ROW_MAX) {
             const int first = (y * width + x0) * SPP + c, n = min(ROW_MAX, row - c);
+            int j0 = 0;
+#if BIN_VW == 8
+            for (; j0 + 8 <= n; j0 += 8) {
+                const int8 ks = first + j0 + lane;
+                const int8 kv = (ks / SPP) * stride + offset + ks % SPP;
+                float8 v0, v1, v2, v3, v4, v5, v6, v7, v8;
+                const int8 iv = mip_record8(kv, MIP_BIN_PASS, glv, &v0, &v1, &v2, &v3, &v4,
+                                            &v5, &v6, &v7, &v8);
+                vstore8(iv, 0, ridx + j0);
+                vstore8(v0, 0, r0 + j0); vstore8(v1, 0, r1 + j0); vstore8(v2, 0, r2 + j0);
+                vstore8(v3, 0, r3 + j0); vstore8(v4, 0, r4 + j0); vstore8(v5, 0, r5 + j0);
+                vstore8(v6, 0, r6 + j0); vstore8(v7, 0, r7 + j0); vstore8(v8, 0, r8 + j0);
+            }
+#endif
             if (stride == SPP) {  /* a whole frame: the row's samples are contiguous */
-                for (int j = 0; j < n; ++j)
+                for (int j = j0; j < n; ++j)
                     MIP_RECORD_INTO(j, first + j);
             } else {  /* a view of one (kept apart: the mapping turns the loads to gathers) */
-                for (int j = 0; j < n; ++j)
+                for (int j = j0; j < n; ++j)
                     MIP_RECORD_INTO(j, mip_element(first + j, stride, offset));
             }
             /* consecutive samples that share a bin (a pixel's samples, a coarse level's

@@ -12,6 +12,7 @@ from splat_frames import frame
 import clrecon
 from clrecon.api import make_pipeline
 from clrecon.core.pipeline import DeviceSamples
+from clrecon.methods.splat import mip
 from clrecon.methods.splat import mip_reference as mref
 from clrecon.methods.splat import reference as ref
 from clrecon.methods.splat.mip import MAX_LEVELS, MipGeometry
@@ -51,9 +52,15 @@ def reference(pipe, buf):
     (dict(mip_radius=3.0, layers=3, scatter="atomic"), True, 20.0),
     (dict(mip_radius=8.0, psf="simplelens"), True, 6.0),
 ], ids=["static-r2", "motion-r4", "atomic-r3", "simplelens-ignores-motion"])
-def test_mip_matches_reference(device, rng, knobs, motion, aperture):
+@pytest.mark.parametrize("lanes", [1, 8])
+def test_mip_matches_reference(device, rng, knobs, motion, aperture, lanes, monkeypatch):
+    """The level-0 image and the output against the reference; the owner tiles' records 1
+    or 8 samples a step (rows of 17 px x 3 spp: six 8-sample steps and a scalar tail)."""
+    monkeypatch.setattr(mip, "bin_lanes", lambda context: lanes)
     buf = frame(rng, h=14, w=17, s=3, motion=motion, aperture=aperture)
     pipe, got, lev0 = run_mip(device, buf, **knobs)
+    if knobs.get("scatter") != "atomic":
+        assert pipe.mip.bin_lanes == lanes
     assert pipe.geometry.nlev >= 2 or knobs["mip_radius"] >= 8.0
     want_lev0, want = reference(pipe, buf)
     # the frame region of level 0 (what the composite reads; the upsampling fills no more)
