@@ -116,18 +116,66 @@ __attribute__((always_inline)) inline int mip_record(const int k, MIP_BIN_ARGS, 
  * its loads); the level's int4 parameters are picked from glv, lv[0 .. NLEV - 1] read once */
 #define G8(p, k) ((float8)((p)[(k).s0], (p)[(k).s1], (p)[(k).s2], (p)[(k).s3], (p)[(k).s4], \
                            (p)[(k).s5], (p)[(k).s6], (p)[(k).s7]))
+/* The lanes' elements: MIP_CONTIG, k0 .. k0 + 7 (a whole frame); MIP_RUNS4, k0 .. k0 + 3
+ * and k1 .. k1 + 3 (a view of 4 samples a pixel: a half of an 8-spp frame); MIP_GATHER, k
+ * (any other view). Loads of a field with one, two or three components a sample (component
+ * c); gathers were half the pass's time on an AMD EPYC. */
+#define MIP_CONTIG 0
+#define MIP_RUNS4 1
+#define MIP_GATHER 2
+__attribute__((always_inline)) inline float8 mip_ld1(__global const float *p, const int mode,
+                                                    const int k0, const int k1, const int8 k)
+{
+    if (mode == MIP_CONTIG)
+        return vload8(0, p + k0);
+    if (mode == MIP_RUNS4)
+        return (float8)(vload4(0, p + k0), vload4(0, p + k1));
+    return G8(p, k);
+}
+__attribute__((always_inline)) inline float8 mip_ld2(__global const float *p, const int c,
+                                                    const int mode, const int k0,
+                                                    const int k1, const int8 k)
+{
+    if (mode == MIP_CONTIG) {
+        const float16 v = vload16(0, p + 2 * k0);
+        return c ? v.odd : v.even;
+    }
+    if (mode == MIP_RUNS4) {
+        const float8 a = vload8(0, p + 2 * k0), b = vload8(0, p + 2 * k1);
+        return c ? (float8)(a.odd, b.odd) : (float8)(a.even, b.even);
+    }
+    return G8(p, 2 * k + c);
+}
+/* three components of 4 consecutive samples (12 floats at q) */
+__attribute__((always_inline)) inline float4 mip_ld3_4(__global const float *q, const int c)
+{
+    const float4 a = vload4(0, q), b = vload4(1, q), d = vload4(2, q);
+    return c == 0 ? (float4)(a.s0, a.s3, b.s2, d.s1)
+         : c == 1 ? (float4)(a.s1, b.s0, b.s3, d.s2) : (float4)(a.s2, b.s1, d.s0, d.s3);
+}
+__attribute__((always_inline)) inline float8 mip_ld3(__global const float *p, const int c,
+                                                    const int mode, const int k0,
+                                                    const int k1, const int8 k)
+{
+    if (mode == MIP_CONTIG)
+        return (float8)(mip_ld3_4(p + 3 * k0, c), mip_ld3_4(p + 3 * k0 + 12, c));
+    if (mode == MIP_RUNS4)
+        return (float8)(mip_ld3_4(p + 3 * k0, c), mip_ld3_4(p + 3 * k1, c));
+    return G8(p, 3 * k + c);
+}
 __attribute__((always_inline)) inline int8 mip_record8(
-    const int8 k, MIP_BIN_ARGS, const int4 *glv, float8 *r0, float8 *r1, float8 *r2,
+    const int mode, const int k0, const int k1, const int8 k, MIP_BIN_ARGS, const int4 *glv,
+    float8 *r0, float8 *r1, float8 *r2,
     float8 *r3, float8 *r4, float8 *r5, float8 *r6, float8 *r7, float8 *r8)
 {
-    const float8 z = G8(depth, k);
+    const float8 z = mip_ld1(depth, mode, k0, k1, k);
     const int8 miss = isgreaterequal(z, (float8)(MISS_DEPTH));
     const float8 coc = select(c0 / z + c1, (float8)(c1), miss);
     const float8 r = fabs(coc);
     float8 mx = (float8)(0.0f), my = (float8)(0.0f);
 #if HAS_MOTION
-    mx = G8(motion, 2 * k);
-    my = G8(motion, 2 * k + 1);
+    mx = mip_ld2(motion, 0, mode, k0, k1, k);
+    my = mip_ld2(motion, 1, mode, k0, k1, k);
 #endif
     const float8 len = sqrt(mx * mx + my * my);
     int8 l = (int8)(0);
@@ -142,10 +190,10 @@ __attribute__((always_inline)) inline int8 mip_record8(
     const float8 cs = select((float8)(1.0f), rl * s / r, isgreater(r * inv_s, rl));
     const float8 ms = select((float8)(1.0f), ml * s / len, isgreater(len * inv_s, ml));
     const float8 cc = coc * cs;
-    float8 cx = G8(position, 2 * k) - cc * G8(lens, 2 * k);
-    float8 cy = G8(position, 2 * k + 1) - cc * G8(lens, 2 * k + 1);
+    float8 cx = mip_ld2(position, 0, mode, k0, k1, k) - cc * mip_ld2(lens, 0, mode, k0, k1, k);
+    float8 cy = mip_ld2(position, 1, mode, k0, k1, k) - cc * mip_ld2(lens, 1, mode, k0, k1, k);
 #if HAS_MOTION
-    const float8 dt = (G8(time, k) - 0.5f) * ms;
+    const float8 dt = (mip_ld1(time, mode, k0, k1, k) - 0.5f) * ms;
     cx -= dt * mx;
     cy -= dt * my;
 #endif
@@ -170,9 +218,9 @@ __attribute__((always_inline)) inline int8 mip_record8(
     const int8 out = (qx < e - gw) | (qy < e - gw) | (qx >= gy - gw - e) | (qy >= gz - gw - e);
     const float w = 1.0f / (float)SPP;
     const float8 wm = w * ms * inv_s;
-    *r0 = G8(color, 3 * k) * w;
-    *r1 = G8(color, 3 * k + 1) * w;
-    *r2 = G8(color, 3 * k + 2) * w;
+    *r0 = mip_ld3(color, 0, mode, k0, k1, k) * w;
+    *r1 = mip_ld3(color, 1, mode, k0, k1, k) * w;
+    *r2 = mip_ld3(color, 2, mode, k0, k1, k) * w;
     *r3 = (float8)(w);
     *r4 = r * cs * inv_s * w;
     *r5 = mx * wm;
@@ -273,17 +321,34 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
             const int first = (y * width + x0) * SPP + c, n = min(ROW_MAX, row - c);
             int j0 = 0;
 #if BIN_VW == 8
-            for (; j0 + 8 <= n; j0 += 8) {
-                const int8 ks = first + j0 + lane;
-                const int8 kv = (ks / SPP) * stride + offset + ks % SPP;
-                float8 v0, v1, v2, v3, v4, v5, v6, v7, v8;
-                const int8 iv = mip_record8(kv, MIP_BIN_PASS, glv, &v0, &v1, &v2, &v3, &v4,
-                                            &v5, &v6, &v7, &v8);
-                vstore8(iv, 0, ridx + j0);
-                vstore8(v0, 0, r0 + j0); vstore8(v1, 0, r1 + j0); vstore8(v2, 0, r2 + j0);
-                vstore8(v3, 0, r3 + j0); vstore8(v4, 0, r4 + j0); vstore8(v5, 0, r5 + j0);
-                vstore8(v6, 0, r6 + j0); vstore8(v7, 0, r7 + j0); vstore8(v8, 0, r8 + j0);
+            /* the three ways to the lanes' elements, each its own loop (the mode a constant
+             * in each) */
+#define MIP_STEP8(mode, k0, k1, kv) \
+    do { \
+        float8 v0, v1, v2, v3, v4, v5, v6, v7, v8; \
+        const int8 iv = mip_record8((mode), (k0), (k1), (kv), MIP_BIN_PASS, glv, &v0, &v1, \
+                                    &v2, &v3, &v4, &v5, &v6, &v7, &v8); \
+        vstore8(iv, 0, ridx + j0); \
+        vstore8(v0, 0, r0 + j0); vstore8(v1, 0, r1 + j0); vstore8(v2, 0, r2 + j0); \
+        vstore8(v3, 0, r3 + j0); vstore8(v4, 0, r4 + j0); vstore8(v5, 0, r5 + j0); \
+        vstore8(v6, 0, r6 + j0); vstore8(v7, 0, r7 + j0); vstore8(v8, 0, r8 + j0); \
+    } while (0)
+            if (stride == SPP) {
+                for (; j0 + 8 <= n; j0 += 8)
+                    MIP_STEP8(MIP_CONTIG, first + j0, 0, lane);
+            } else if (SPP == 4 && first % 4 == 0) {  /* two pixels' runs of 4 a step */
+                for (; j0 + 8 <= n; j0 += 8) {
+                    const int px = (first + j0) / 4;
+                    MIP_STEP8(MIP_RUNS4, px * stride + offset, (px + 1) * stride + offset,
+                              lane);
+                }
+            } else {
+                for (; j0 + 8 <= n; j0 += 8) {
+                    const int8 ks = first + j0 + lane;
+                    MIP_STEP8(MIP_GATHER, 0, 0, (ks / SPP) * stride + offset + ks % SPP);
+                }
             }
+#undef MIP_STEP8
 #endif
             if (stride == SPP) {  /* a whole frame: the row's samples are contiguous */
                 for (int j = j0; j < n; ++j)
