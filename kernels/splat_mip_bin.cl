@@ -112,8 +112,9 @@ __attribute__((always_inline)) inline int mip_record(const int k, MIP_BIN_ARGS, 
 #endif
 #if BIN_VW == 8
 /* mip_record for the samples at elements k.s0 .. k.s7, as the lanes of float8s: the same
- * expressions lane by lane (PoCL 3.1 leaves the scalar loop unvectorised: 4x the time of
- * its loads); the level's int4 parameters are picked from glv, lv[0 .. NLEV - 1] read once */
+ * expressions lane by lane (PoCL 3.1 ran the scalar loop one sample at a time: its divisions
+ * and compares were the pass's cost); the level's int4 parameters are picked from glv,
+ * lv[0 .. NLEV - 1] read once */
 #define G8(p, k) ((float8)((p)[(k).s0], (p)[(k).s1], (p)[(k).s2], (p)[(k).s3], (p)[(k).s4], \
                            (p)[(k).s5], (p)[(k).s6], (p)[(k).s7]))
 /* The lanes' elements: MIP_CONTIG, k0 .. k0 + 7 (a whole frame); MIP_RUNS4, k0 .. k0 + 3
