@@ -174,6 +174,13 @@ def is_simulator(platform: str) -> bool:
     return any(s.lower() in platform.strip().lower() for s in SIMULATOR_PLATFORMS)
 
 
+def cpu_context(context: cl.Context) -> bool:
+    """Whether every device of ``context`` is a CPU: the passes that take several outputs a
+    work-item as explicit vector lanes there (PoCL 3.1 does not vectorise across work-items a
+    kernel that holds vector values) ask this."""
+    return all(d.type & cl.device_type.CPU for d in context.devices)
+
+
 def _default_index(devices: list[cl.Device]) -> int:
     """The first GPU, else the first device; simulators only where nothing else is."""
     real = [i for i, d in enumerate(devices) if not is_simulator(d.platform.name)]

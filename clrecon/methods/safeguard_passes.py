@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from clrecon.core.device import get_kernel
+from clrecon.core.device import cpu_context, get_kernel
 
 #: the statistics' planes: d2, vb, vm and the exponent
 STAT_PLANES = 4
@@ -33,7 +33,7 @@ def halves(spp: int) -> tuple[int, int]:
 def vector_width(context: cl.Context) -> int:
     """Pixels a work-item of the window passes: 16 on a CPU (PoCL and Intel's runtime vectorise
     the explicit ``float16``), 1 elsewhere."""
-    return 16 if all(d.type & cl.device_type.CPU for d in context.devices) else 1
+    return 16 if cpu_context(context) else 1
 
 
 class SafeguardPasses:

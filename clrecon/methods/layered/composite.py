@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from clrecon.core.device import cpu_context
 from clrecon.core.local_size import LocalSize
 from clrecon.methods.layered.layout import Layout
 from clrecon.methods.layered.passes import layered_kernel, local_for
@@ -18,7 +19,7 @@ def composite_width(context: cl.Context, tile: int) -> int:
     4)."""
     if tile < 4:
         return 1
-    cpu = all(d.type & cl.device_type.CPU for d in context.devices)
+    cpu = cpu_context(context)
     return min(8 if cpu else 4, tile)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pyopencl as cl
 
+from clrecon.core.device import cpu_context
 from clrecon.core.local_size import LocalSize
 from clrecon.methods.layered.layout import NCH, Layout
 from clrecon.methods.layered.passes import layered_kernel, local_for
@@ -20,7 +21,7 @@ def recursive_lines(context: cl.Context) -> int:
     a NULL local size PoCL 3.1 picked 8 x 128 at 256x256 and crashed in the pipeline (a
     10 KB private array a work-item; the same launch alone in a test ran), and 1 x 1 is as
     fast. 16 lines are no faster and are not offered."""
-    return 8 if all(d.type & cl.device_type.CPU for d in context.devices) else 1
+    return 8 if cpu_context(context) else 1
 
 
 def gauss_width(context: cl.Context) -> int:
@@ -30,7 +31,7 @@ def gauss_width(context: cl.Context) -> int:
     bounds are shared by the work-item's lanes, so wider work-items spread them thinner (deep
     1280x720 8 spp, the halves' Gaussian 45-49 -> 30-34 ms on PoCL with 8; 16 lanes: 74-80 ms,
     more of the taps at a grid's edge go lane by lane)."""
-    return 8 if all(d.type & cl.device_type.CPU for d in context.devices) else 4
+    return 8 if cpu_context(context) else 4
 
 
 #: bytes of the private array a work-item of the vector kernel holds (FR_CH channels of

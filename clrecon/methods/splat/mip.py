@@ -28,7 +28,7 @@ import math
 import numpy as np
 import pyopencl as cl
 
-from clrecon.core.device import get_kernel
+from clrecon.core.device import cpu_context, get_kernel
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods.splat.splat import Splat, owner_phases
 
@@ -120,7 +120,7 @@ def bin_lanes(context: cl.Context) -> int:
     same expressions as float8 lanes took the bin pass of deep 1280x720 8 spp from 143-150 to
     91-93 ms (the halves': 186-193 to 134-145), and loading the lanes as vectors instead of
     gathers to 50-57 ms (the halves': 80-99)."""
-    return 8 if all(d.type & cl.device_type.CPU for d in context.devices) else 1
+    return 8 if cpu_context(context) else 1
 
 
 class MipSplat:
