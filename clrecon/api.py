@@ -22,6 +22,7 @@ from clrecon.core.pipeline import METHODS, DeviceSamples, Pipeline, make_method
 from clrecon.core.plan import BOX_PLAN
 from clrecon.core.samples import FIELDS, FrameInfo, SampleBuffer
 from clrecon.methods import box, layered, splat, sweep  # noqa: F401  (they register themselves)
+from clrecon.methods.guided import check_radius
 from clrecon.methods.safeguard import Safeguarded
 from clrecon.tune.runtime import override_key
 
@@ -31,7 +32,7 @@ __all__ = ["METHODS", "PIPELINE_KNOBS", "Reconstruction", "clear_sessions", "mak
 
 def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool = False,
                   safeguard: bool | None = None, estimate_error: bool = False,
-                  **knobs) -> Pipeline:
+                  guided: int = 0, **knobs) -> Pipeline:
     """Plan ``method`` for frames like ``info`` on ``context``.
 
     ``info`` may describe a family rather than one frame: a renderer that knows its largest
@@ -44,9 +45,21 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     (:mod:`clrecon.methods.safeguard`);
     ``safeguard=False`` is the papers' method alone. ``estimate_error=True`` also computes the
     per-pixel squared-error estimate, the temporary ``"error"`` (needs 2 spp or more).
+    ``guided=R`` (1..8; 0: off) refines each half's image of the method by a local linear
+    regression of that half's box image on it over (2R+1)^2 windows
+    (:mod:`clrecon.methods.guided`) before the safeguard sees it; with ``safeguard=False``
+    the image is the refined halves' mean. It needs 2 spp or more and a method other than
+    box.
     """
     safeguard = check_bool("safeguard", safeguard, none_ok=True)
     estimate_error = check_bool("estimate_error", estimate_error)
+    guided = check_radius(guided)
+    if guided and method == "box":
+        raise ValueError("guided: box has no image of its own to guide the regression; "
+                         "pick a method (sweep, layered or splat)")
+    if guided and info.spp < 2:
+        raise ValueError(f"guided: needs >= 2 samples per pixel (two independent halves), "
+                         f"the frame has {info.spp}")
     inner = make_method(method, context, info, **knobs)
     if safeguard is None:
         safeguard = method != "box" and info.spp >= 2
@@ -61,8 +74,9 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
                          f"halves), the frame has {info.spp}")
     # a frame without blur is planned as box, with nothing to blend: the method's own
     # pipeline, unless it may grow into a blurred frame (the wrapper re-plans both)
-    if estimate_error or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
-        pipe = Safeguarded(context, info, method, knobs, blend=bool(safeguard), full=inner)
+    if estimate_error or guided or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
+        pipe = Safeguarded(context, info, method, knobs, blend=bool(safeguard), full=inner,
+                           guided=guided)
     else:
         pipe = inner
     pipe.grow, pipe.knobs = bool(grow), dict(knobs)
@@ -70,7 +84,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
 
 
 #: knobs every method takes through :func:`make_pipeline` (beside its class's own)
-PIPELINE_KNOBS = ("safeguard", "estimate_error")
+PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided")
 
 
 def method_knobs(method: str) -> set[str]:

@@ -80,6 +80,8 @@ DESCRIPTIONS = {
                   "radius)",
     "safeguard": "blend toward box where the method's estimated bias dominates (None: on for "
                  "every method but box at >= 2 spp); --no-safeguard: the paper's method alone",
+    "guided": "refine each half's image by a regression of its box image on it over "
+              "(2N+1)^2 windows (0: off; 1..8)",
 }
 
 

@@ -75,6 +75,7 @@ from clrecon.core.errors import DeviceMemoryError
 from clrecon.core.pipeline import DeviceSamples, Pipeline, make_method
 from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
+from clrecon.methods.guided import GuidedPasses, check_radius
 from clrecon.methods.safeguard_passes import SafeguardPasses, halves
 
 _FLT_MAX = float(np.finfo(np.float32).max)  # the error image saturates there
@@ -158,8 +159,9 @@ class Safeguarded(Pipeline):
     """
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
-                 full: Pipeline | None = None, views: bool = True, joint: bool = True):
-        self._flags = dict(views=views, joint=joint)
+                 full: Pipeline | None = None, views: bool = True, joint: bool = True,
+                 guided: int = 0):
+        self._flags = dict(views=views, joint=joint, guided=guided)
         if info.spp < 2:
             raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent "
                              f"halves), the frame has {info.spp}")
@@ -176,7 +178,14 @@ class Safeguarded(Pipeline):
         # the blend's method image from its halves, (ha mA + hb mB) / S, instead of a third
         # run on the frame: the same bias and variance, a third less work. The error alone
         # (MODE_METHOD) keeps the method's own image.
-        self.halves_mean = self.mode == MODE_BLEND and self.full.halves_mean
+        # guided: the halves' images refined by their box images (clrecon.methods.guided);
+        # the image is the refined halves' mean, with or without the blend
+        self.guided = 0 if is_box else check_radius(guided)
+        if self.guided and not self.full.halves_mean:
+            raise ValueError(f"guided: {method}'s image is not the mean of its halves' "
+                             f"images, so the refined halves cannot stand for it")
+        self.halves_mean = (self.mode == MODE_BLEND or bool(self.guided)) and \
+            self.full.halves_mean
         ha, hb = halves(info.spp)
         self.half_a = self.half_b = None
         if not is_box:
@@ -228,7 +237,15 @@ class Safeguarded(Pipeline):
                                   self._joint_step()))
             steps.append(Step(f"{method} (halves)", half_fields, ("ma", "mb"),
                               self._halves_step(inner_fields)))
-        images = () if is_box else ("ma", "mb") if self.halves_mean else ("m", "ma", "mb")
+        # the halves' images the statistics read: the method's, or their refinements
+        self.half_images = ("qa", "qb") if self.guided else ("ma", "mb")
+        if self.guided:
+            self.guide_passes = GuidedPasses(context, self.guided)
+            temps |= self.guide_passes.temporaries(info.width, info.height)
+            steps.append(Step("guided", ("color", "ma", "mb"), ("qa", "qb"),
+                              self._guided_step()))
+        images = () if is_box else self.half_images if self.halves_mean else \
+            ("m",) + self.half_images
         steps.append(Step("safeguard_stats", ("color",) + images,
                           ("box", "stats") + (("m",) if self.halves_mean else ()),
                           self._stats_step()))
@@ -236,7 +253,8 @@ class Safeguarded(Pipeline):
                           ("out", "error"), self._blend_step()))
         bounds = tuple(self.full.plan.bounds) + shape_bounds(
             info, "the halves' pipelines are planned for spp // 2 and spp - spp // 2")
-        suffix = "safeguard" if self.mode == MODE_BLEND else "error"
+        suffix = ("guided+" if self.guided else "") + (
+            "safeguard" if self.mode == MODE_BLEND else "error")
         plan = Plan(method, f"{self.full.plan.name}+{suffix}", inner_fields, tuple(steps),
                     temps, _unique(bounds))
         try:
@@ -308,11 +326,20 @@ class Safeguarded(Pipeline):
             return evs
         return run
 
+    def _guided_step(self):
+        def run(queue, f, wait_for):
+            b = f.buffers
+            return self.guide_passes(queue, b["color"], b["ma"], b["mb"], b["guided_y"],
+                                     b["guided_d"], b["guided_coef"], b["qa"], b["qb"],
+                                     f.width, f.height, f.spp, wait_for)
+        return run
+
     def _stats_step(self):
         def run(queue, f, wait_for):
             b = f.buffers
             has = self.mode != MODE_BOX
-            m, ma, mb = (b["m"], b["ma"], b["mb"]) if has else (b["box"],) * 3
+            ia, ib = self.half_images
+            m, ma, mb = (b["m"], b[ia], b[ib]) if has else (b["box"],) * 3
             ev = self.passes.run_stats(queue, b["color"], m, ma, mb, b["box"], b["stats"],
                                        f.width, f.height, f.spp,
                                        2 if self.halves_mean else int(has), wait_for)
@@ -336,6 +363,8 @@ class Safeguarded(Pipeline):
     def describe(self) -> dict:
         d = dict(self.full.describe())
         d["safeguard"] = self.mode == MODE_BLEND
+        if self.guided:
+            d["guided"] = self.guided
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True
