@@ -32,7 +32,7 @@ __all__ = ["METHODS", "PIPELINE_KNOBS", "Reconstruction", "clear_sessions", "mak
 
 def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool = False,
                   safeguard: bool | None = None, estimate_error: bool = False,
-                  guided: int = 0, **knobs) -> Pipeline:
+                  guided: int = 0, guide_blend: bool = True, **knobs) -> Pipeline:
     """Plan ``method`` for frames like ``info`` on ``context``.
 
     ``info`` may describe a family rather than one frame: a renderer that knows its largest
@@ -49,11 +49,14 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     regression of that half's box image on it over (2R+1)^2 windows
     (:mod:`clrecon.methods.guided`) before the safeguard sees it; with ``safeguard=False``
     the image is the refined halves' mean. It needs 2 spp or more and a method other than
-    box.
+    box. ``guide_blend`` (with ``guided``) then blends each refined half toward the method's
+    own image wherever the safeguard's estimator, with the refinement in box's place, says
+    the method's is the better (its blurred regions, where its image is nearly noise-free).
     """
     safeguard = check_bool("safeguard", safeguard, none_ok=True)
     estimate_error = check_bool("estimate_error", estimate_error)
     guided = check_radius(guided)
+    guide_blend = check_bool("guide_blend", guide_blend)
     if guided and method == "box":
         raise ValueError("guided: box has no image of its own to guide the regression; "
                          "pick a method (sweep, layered or splat)")
@@ -76,7 +79,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     # pipeline, unless it may grow into a blurred frame (the wrapper re-plans both)
     if estimate_error or guided or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
         pipe = Safeguarded(context, info, method, knobs, blend=bool(safeguard), full=inner,
-                           guided=guided)
+                           guided=guided, guide_blend=guide_blend)
     else:
         pipe = inner
     pipe.grow, pipe.knobs = bool(grow), dict(knobs)
@@ -84,7 +87,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
 
 
 #: knobs every method takes through :func:`make_pipeline` (beside its class's own)
-PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided")
+PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided", "guide_blend")
 
 
 def method_knobs(method: str) -> set[str]:

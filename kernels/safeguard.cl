@@ -17,7 +17,9 @@
  *                    (box's own: mean3(vb), unbiased)
  * Arguments: split: src (P, S, C) into dst_a (P, ha, C) and dst_b (P, S - ha, C), C = `width`
  * floats a sample; stats: color (H, W, S, 3), m, ma, mb (H, W, 3) the method's images of the
- * frame (or written: the halves' mean) and of its halves, box (H, W, 3), stats: four planes
+ * frame (or written: the halves' mean) and of its halves, box (H, W, 3) (with ref_images:
+ * the reference's halves are the images ua, ub (H, W, 3) in place of the samples' means:
+ * the guided refinement's blend toward its guide), stats: four planes
  * (d2, vb, vm, e) of (H, sp) floats, pixel x at column x + 3, sp >= rp + 6, the columns
  * outside the image 0 and e = SG_PAD_E; rows: eight planes of (H, rp) floats, rp a multiple of
  * SG_VW >= W (rows3 = vb3, vm3, e3, ee3; rows7 = e7, vb7, e3max, e7max); blend: out (H, W, 3),
@@ -101,7 +103,9 @@ inline float3 load3(__global const float *a, int i) { return vload3(i, a); }
 __kernel void safeguard_stats(__global const float *color, __global float *m,
                               __global const float *ma, __global const float *mb,
                               __global float *box, __global float *stats,
-                              int width, int height, int spp, int ha, int has_method, int sp)
+                              int width, int height, int spp, int ha, int has_method, int sp,
+                              __global const float *ua, __global const float *ub,
+                              int ref_images)
 {
     /* one work-item per column of the planes: the padding's too */
     const int col = get_global_id(0), y = get_global_id(1), x = col - 3;
@@ -116,13 +120,18 @@ __kernel void safeguard_stats(__global const float *color, __global float *m,
         return;
     }
     const int p = pixel_index(x, y, width);
-    const __global float *c = color + (size_t)p * spp * 3;
-    float3 sa = (float3)(0.0f), sb = (float3)(0.0f);
-    for (int i = 0; i < ha; ++i)
-        sa += vload3(i, c);
-    for (int i = ha; i < spp; ++i)
-        sb += vload3(i, c);
     const int hb = spp - ha;
+    float3 sa = (float3)(0.0f), sb = (float3)(0.0f);
+    if (ref_images) {  /* the reference's halves are images (ua, ub), not the samples' means */
+        sa = (float)ha * load3(ua, p);
+        sb = (float)hb * load3(ub, p);
+    } else {
+        const __global float *c = color + (size_t)p * spp * 3;
+        for (int i = 0; i < ha; ++i)
+            sa += vload3(i, c);
+        for (int i = ha; i < spp; ++i)
+            sb += vload3(i, c);
+    }
     const float3 full = (sa + sb) / (float)spp;
     const float3 a = sa / (float)ha, b = sb / (float)hb;
     float3 vm_ = full, vma = full, vmb = full;

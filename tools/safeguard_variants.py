@@ -35,7 +35,7 @@ from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard import _lum2, _window_count, _window_mean, halves
+from clrecon.methods.safeguard_reference import _lum2, _window_count, _window_mean, halves
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_reference, render_samples

@@ -43,7 +43,8 @@ from clrecon.scenes import get_scene, render_reference, render_samples
 #: per method, the settings that trade speed for accuracy (label, knobs); a method that is
 #: not registered is skipped, a knob a method does not take is an error. ``safeguard=False``
 #: is the paper's method alone; ``+safeguard`` the method's default
-#: (:mod:`clrecon.methods.safeguard`)
+#: (:mod:`clrecon.methods.safeguard`); ``guided`` the method's halves refined by their box
+#: images (:mod:`clrecon.methods.guided`)
 TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
     "box": (("box", {}),),
     "sweep": (
@@ -52,6 +53,7 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
         ("sweep 2-scale ^1.3", {"scales": 2, "exponent": 1.3, "safeguard": False}),
         ("sweep 4-scale", {"scales": 4, "safeguard": False}),
         ("sweep 2-scale +safeguard", {"scales": 2}),
+        ("sweep guided", {"scales": 2, "guided": 2, "safeguard": False}),
     ),
     "layered": (
         ("layered sheared", {"filter": "sheared", "safeguard": False}),
@@ -61,6 +63,9 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
         ("layered no merging", {"merge_threshold": -1.0, "safeguard": False}),
         ("layered tile 16", {"tile": 16, "safeguard": False}),
         ("layered sheared +safeguard", {"filter": "sheared"}),
+        ("layered guided", {"filter": "sheared", "guided": 2, "safeguard": False}),
+        ("layered guided no blend", {"filter": "sheared", "guided": 2, "guide_blend": False,
+                                     "safeguard": False}),
     ),
     "splat": (
         ("splat", {"safeguard": False}),
@@ -71,6 +76,8 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
         ("splat paper f5", {"mip_radius": 0, "pyramid": "f5", "safeguard": False}),
         ("splat paper dense", {"dense": True, "safeguard": False}),
         ("splat +safeguard", {}),
+        ("splat guided", {"guided": 2, "safeguard": False}),
+        ("splat guided +safeguard", {"guided": 2}),
     ),
 }
 
@@ -78,9 +85,11 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
 OIDN_QUALITIES = ("fast", "high")
 
 
-def trade_variants(methods: Sequence[str] | None = None) -> list[tuple[str, str, dict]]:
+def trade_variants(methods: Sequence[str] | None = None,
+                   settings: Sequence[str] | None = None) -> list[tuple[str, str, dict]]:
     """The (label, method, knobs) settings of :data:`TRADES` for ``methods`` (default: every
-    registered method). ``box`` is always included: every ratio is taken against it."""
+    registered method), only those labelled in ``settings`` when it is given. ``box`` is
+    always included: every ratio is taken against it."""
     methods = [m for m in TRADES if m in METHODS] if methods is None else list(methods)
     for m in methods:
         if m not in METHODS:
@@ -89,7 +98,15 @@ def trade_variants(methods: Sequence[str] | None = None) -> list[tuple[str, str,
             raise ValueError(f"methods: {m!r} has no trade settings in clrecon.bench.trade")
     if "box" not in methods:
         methods = ["box", *methods]
-    return _check_variants([(lab, m, k) for m in methods for lab, k in TRADES[m]])
+    every = [(lab, m, k) for m in methods for lab, k in TRADES[m]]
+    if settings is not None:
+        known = {lab for lab, _, _ in every}
+        unknown = [s for s in settings if s not in known]
+        if unknown:
+            raise ValueError(f"settings: unknown {unknown}; the methods' settings are "
+                             f"{sorted(known)}")
+        every = [v for v in every if v[0] == "box" or v[0] in set(settings)]
+    return _check_variants(every)
 
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[bool]:
@@ -127,7 +144,8 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
           out_dir: str | Path = "out/trade", ref_spp: int | None = None,
           progress: Progress = None,
           inputs: Sequence[tuple[str, str]] | None = None,
-          status: Callable[[str], None] | None = None) -> dict:
+          status: Callable[[str], None] | None = None,
+          settings: Sequence[str] | None = None) -> dict:
     """Measure the speed/accuracy trade; write ``trade.md``, ``trade.json`` and the pictures.
 
     Parameters
@@ -157,6 +175,8 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         The user's own frames (any format of :func:`clrecon.io.load_samples`, references as
         images), measured like a scene named after the file's stem at the file's spp. With
         ``inputs`` and no ``scenes``, only the user's frames run.
+    settings : sequence of str, optional
+        Only the :data:`TRADES` settings of these labels (and box).
     status : callable, optional
         ``status(line)``: before measuring, one line saying what will run (scenes x spp x
         settings = measurements, the rounds, the references to render); then one after
@@ -174,7 +194,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     """
     scenes, inputs, stems = frame_sources(scenes, inputs)
     scene_objs = {n: get_scene(n) for n in scenes}
-    spps, variants = _check_options(spps, repeats, methods, oidn)
+    spps, variants = _check_options(spps, repeats, methods, oidn, settings)
     w, h = (int(v) for v in size)
     dev = get_device(device)
     out = Path(out_dir)
@@ -246,14 +266,15 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     return report
 
 
-def _check_options(spps, repeats, methods, oidn: bool) -> tuple[list[int], list]:
+def _check_options(spps, repeats, methods, oidn: bool, settings=None
+                   ) -> tuple[list[int], list]:
     """The spp list and the variants, checked before any measurement."""
     spps = [int(s) for s in spps]
     if not spps or min(spps) < 1:
         raise ValueError(f"spps: need positive integers, got {spps}")
     if not (isinstance(repeats, int) and repeats >= 1):
         raise ValueError(f"repeats: must be a positive integer, got {repeats!r}")
-    variants = trade_variants(methods)
+    variants = trade_variants(methods, settings)
     if oidn:
         import pyoidn  # noqa: F401  (fail before any measurement when it is missing)
     return spps, variants

@@ -82,6 +82,8 @@ DESCRIPTIONS = {
                  "every method but box at >= 2 spp); --no-safeguard: the paper's method alone",
     "guided": "refine each half's image by a regression of its box image on it over "
               "(2N+1)^2 windows (0: off; 1..8)",
+    "guide_blend": "with --guided: blend each refined half toward the method's own image where "
+                   "that is estimated the better",
 }
 
 

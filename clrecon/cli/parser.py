@@ -186,6 +186,10 @@ def _trade(sub) -> None:
     sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
     sp.add_argument("--no-oidn", action="store_true",
                     help="leave out Open Image Denoise (default: included)")
+    sp.add_argument("--settings", type=lambda t: [s.strip() for s in t.split(",") if s.strip()],
+                    default=None, metavar="LABEL,...",
+                    help="only these settings of the methods (labels as in the report, e.g. "
+                    "\"layered guided,splat guided\"; box always runs)")
     _user_frame_args(sp)
     _output_folder(sp, "out/trade", "output folder (references cached in its references/)")
     device_arg(sp)

@@ -76,7 +76,8 @@ def cmd_trade(args) -> int:
             return trade(args.scenes, args.methods, spps=args.spp, size=args.size,
                          repeats=args.repeats, oidn=not args.no_oidn, device=args.device,
                          out_dir=args.output, ref_spp=args.ref_spp, progress=bar,
-                         inputs=user_frames(args), status=status)["markdown"]
+                         inputs=user_frames(args), status=status,
+                         settings=args.settings)["markdown"]
         finally:
             bar.close()
 

@@ -1,5 +1,7 @@
 """The guided refinement (``guided=R``): every method's image of each half of the samples used
-as the guide of a local linear regression of that half's box image (``kernels/guided.cl``).
+as the guide of a local linear regression of that half's box image (``kernels/guided.cl``),
+then blended back toward the method's image where that is estimated the better
+(``guide_blend``).
 
 Why. A method's image is smooth but biased: its filters stand in for the true disc and
 segment shapes, place layer boundaries, and widen or soften edges. The box image is unbiased
@@ -9,33 +11,38 @@ an affine function of it, and the box image fixes that function's coefficients w
 noise of a window's worth of samples instead of one pixel's. This is He, Sun and Tang's guided
 filter (2010; 2013 TPAMI) with the method's image as the guide and the box image as the
 input, written on the residual so that its ridge pulls toward "the method is right up to a
-local offset" rather than toward a flat image.
+local offset" rather than toward a flat image. Where the method's image is nearly
+noise-free and unbiased (a wide blur of one surface: the regression's 12 coefficients from
+``(2R+1)^2`` noisy pixels add noise there), the method's own image is the better estimate.
 
 How. For each half h (samples ``0..ha-1``, ``ha..S-1``) with box image ``y`` and the method's
 image ``g`` of the same half, per window ``k`` of ``(2R + 1)^2`` pixels (clipped to the image,
 ``n`` pixels), with ``u = g - g_k`` and the residual ``e = y - g``:
 
 * ``A_k = (cov(u) + eps I)^-1 cov(u, e)`` (3x3: guide channel by output channel), ``beta_k =
-  mean(e) - A_k^T mean(u)``;
+  mean(e) - A_k^T mean(u)``, solved by Cholesky (float32: the cofactors of a guide whose
+  channels move together, a grey texture, cancel);
 * ``eps = var(y) / n``, ``var(y)`` the window's mean of the half's variance from the halves'
   difference (``var(yA) = hb/S |yA - yB|^2``, mean over RGB): the ridge of a prior whose
   coefficients are of the order of 1 (the method's error is of the order of its image),
   with ``n`` pixels of data. Floors of ``1e-5`` of the guide's variance and ``1e-12`` of
-  the window's largest squared value keep a flat guide's system regular. No constant is fitted to scenes: ``R`` is the one knob;
+  the window's largest squared value keep a flat guide's system regular;
 * ``q_p = g_p + mean over the windows k holding p of (A_k^T (g_p - g_k) + beta_k)``.
+* ``guide_blend``: the safeguard's estimator (:mod:`clrecon.methods.safeguard`) run with the
+  refined halves ``qA``, ``qB`` in box's place and the method's halves as the method gives
+  a weight ``w`` per pixel; each half becomes ``q + w (g - q)`` (one weight for both, so the
+  halves' difference still measures the variance).
 
-The two halves' refined images replace the method's halves' images in the safeguard
-(:mod:`clrecon.methods.safeguard`): its image is their mean, its variance and bias
-estimates are theirs, and its blend toward box keeps the result consistent. Each half's
-regression reads only that half's samples, so the halves stay independent.
+The halves' images then replace the method's halves' images in the safeguard: its image is
+their mean, its variance and bias estimates are theirs, and with ``safeguard`` on its blend
+toward box keeps the result consistent. Each half's regression reads only that half's
+samples and its own guide. No constant is fitted to scenes: ``R`` is the one knob (2 in
+every setting shipped).
 
 Range: each window is computed in units of its largest absolute value (guide, box and the
 halves' difference), so squares of any valid colour stay finite.
 
-Measured (512x512, 8 spp, the layered paper's image as the guide, R = 2, the prototype of
-this module; ``docs/measurements/guided-pocl-512.md`` has the shipped numbers): the guided
-image gains 2-7 dB over its guide and is within 0.2 dB of Open Image Denoise high or above it
-on ``fence``, ``deep``, ``fast_motion`` and ``spheres``.
+Measured: ``docs/measurements/guided-pocl-512-8spp.md``.
 """
 from __future__ import annotations
 
@@ -43,14 +50,25 @@ import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import get_kernel
+from clrecon.methods.safeguard_reference import MODE_BLEND, reference_of_halves
 
 #: floats a window's coefficients take: A (3x3, row = guide channel), then beta (3)
 COEF = 12
+#: planes of the fit's input (``GP_PLANES`` in the kernel)
+PLANES = 15
 #: the radii the kernels are built for
 RADII = range(1, 9)
 #: the ridge's floors: relative to the guide's variance in the window, and to the square of
 #: the window's largest absolute value (the kernel's unit)
 RIDGE_FLOOR, ABS_FLOOR = 1e-5, 1e-12
+
+
+def plane_pitch(width: int, height: int) -> int:
+    """Floats from one of the fit's input planes to the next: the pixel count rounded up to
+    4 KiB, plus 80 floats, so that the 15 planes start in 15 different L1 sets (planes a
+    multiple of 4 KiB apart put a tap's seven loads in one set: the fit at 512x512 took 67 ms
+    against 40 at 500x500)."""
+    return -(-int(width) * int(height) // 1024) * 1024 + 80
 
 
 def check_radius(r) -> int:
@@ -135,22 +153,39 @@ class GuidedPasses:
 
     @staticmethod
     def temporaries(width: int, height: int) -> dict[str, int]:
-        """Bytes of the refinement's buffers: both halves' box images, their difference, the
-        windows' coefficients and the two refined images."""
+        """Bytes of the refinement's buffers: the fit's input planes (both halves' guides and
+        box images, their difference, the windows' scale), the windows' coefficients and the
+        two refined images."""
         npx = int(width) * int(height)
-        return {"guided_y": 2 * npx * 12, "guided_d": npx * 4,
+        return {"guided_planes": PLANES * plane_pitch(width, height) * 4,
                 "guided_coef": 2 * npx * COEF * 4, "qa": npx * 12, "qb": npx * 12}
 
-    def __call__(self, queue, color, ga, gb, y, d, coef, qa, qb, w, h, spp, wait_for=None):
+    def __call__(self, queue, color, ga, gb, planes, coef, qa, qb, w, h, spp, wait_for=None):
         """[("guided_means", ev), ("guided_fit", ev), ("guided_apply", ev)]."""
         ha = spp // 2
         hb = spp - ha
-        self.means.set_args(color, y, d, np.int32(w), np.int32(h), np.int32(spp),
-                            np.int32(ha))
+        ps = np.int32(plane_pitch(w, h))
+        self.means.set_args(color, ga, gb, planes, np.int32(w), np.int32(h), np.int32(spp),
+                            np.int32(ha), ps)
         ev0 = cl.enqueue_nd_range_kernel(queue, self.means, (w, h), None, wait_for=wait_for)
-        self.fit.set_args(ga, gb, y, d, coef, np.int32(w), np.int32(h),
-                          np.float32(hb / spp), np.float32(ha / spp))
+        self.fit.set_args(planes, coef, np.int32(w), np.int32(h), np.float32(hb / spp),
+                          np.float32(ha / spp), ps)
         ev1 = cl.enqueue_nd_range_kernel(queue, self.fit, (w, h, 2), None, wait_for=[ev0])
         self.apply.set_args(ga, gb, coef, qa, qb, np.int32(w), np.int32(h))
         ev2 = cl.enqueue_nd_range_kernel(queue, self.apply, (w, h, 2), None, wait_for=[ev1])
         return [("guided_means", ev0), ("guided_fit", ev1), ("guided_apply", ev2)]
+
+
+def chain_reference(color: np.ndarray, ga: np.ndarray, gb: np.ndarray, r: int,
+                    guide_blend: bool = True):
+    """(A, B): the halves' images the safeguard reads with ``guided=r``: the refinements of
+    :func:`reference`, each blended toward its guide with the weight the safeguard's
+    estimator gives the guide against the refinement (``guide_blend``); float64."""
+    qa, qb = reference(color, ga, gb, r)
+    if not guide_blend:
+        return qa, qb
+    s = color.shape[2]
+    ha = s // 2
+    _, _, w = reference_of_halves(qa, qb, ha, s - ha, None, ga, gb, MODE_BLEND)
+    w = w[..., None]
+    return qa + w * (ga - qa), qb + w * (gb - qb)

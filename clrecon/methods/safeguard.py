@@ -78,66 +78,15 @@ from clrecon.core.samples import FIELDS
 from clrecon.methods.guided import GuidedPasses, check_radius
 from clrecon.methods.safeguard_passes import SafeguardPasses, halves
 
-_FLT_MAX = float(np.finfo(np.float32).max)  # the error image saturates there
-
-#: the blend kernel's modes
-MODE_BOX, MODE_METHOD, MODE_BLEND = 0, 1, 2
-
-
-# -- NumPy reference -------------------------------------------------------------------------
-def _lum2(d: np.ndarray) -> np.ndarray:
-    return (d.astype(np.float64) ** 2).mean(-1)
-
-
-def _window_mean(a: np.ndarray, r: int) -> np.ndarray:
-    """Mean over the (2r+1)^2 window, counting only pixels inside the image."""
-    h, w = a.shape
-    p = np.pad(a, r)
-    ones = np.pad(np.ones_like(a), r)
-    s = sum(p[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
-    n = sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
-    return s / n
-
-
-def _window_count(shape, r: int) -> np.ndarray:
-    """How many pixels of the (2r+1)^2 window lie inside the image."""
-    h, w = shape
-    ones = np.pad(np.ones(shape), r)
-    return sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
-
-
-def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND):
-    """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
-    method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
-    the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``."""
-    s = color.shape[2]
-    ha, hb = halves(s)
-    if m is None and ma is not None:
-        m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
-    c = color.astype(np.float64)
-    sa, sb = c[:, :, :ha].sum(2), c[:, :, ha:].sum(2)
-    box = (sa + sb) / s
-    k = ha * hb / (s * s)
-    vb = k * _lum2(sa / ha - sb / hb)
-    vb3 = _window_mean(vb, 1)
-    if mode == MODE_BOX:
-        return box, np.minimum(vb3, _FLT_MAX)
-    m = m.astype(np.float64)
-    d2 = _lum2(m - box)
-    vm = k * _lum2(ma.astype(np.float64) - mb)
-    e = d2 - vm - vb
-    mu3 = _window_mean(e, 1)
-    n3 = _window_count(e.shape, 1)
-    se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
-    b2 = np.maximum(0.0, np.maximum(_window_mean(e, 3), mu3 - 2.0 * se3))
-    err_m = b2 + _window_mean(vm, 1)
-    if mode == MODE_METHOD:
-        return m, np.minimum(err_m, _FLT_MAX)
-    vbw = np.maximum(vb3, _window_mean(vb, 3))
-    den = vbw + err_m
-    w = np.where(den > 0, vbw / np.where(den > 0, den, 1), 0.0)
-    img = box + w[..., None] * (m - box)
-    return img, np.minimum(w * w * err_m + (1 - w) ** 2 * vbw, _FLT_MAX)
+# the NumPy reference and the blend kernel's modes live in their own module; re-exported
+# here, where the safeguard is (``X as X``: an explicit re-export)
+from clrecon.methods.safeguard_reference import MODE_BLEND as MODE_BLEND  # noqa: E402
+from clrecon.methods.safeguard_reference import MODE_BOX as MODE_BOX  # noqa: E402
+from clrecon.methods.safeguard_reference import MODE_METHOD as MODE_METHOD  # noqa: E402
+from clrecon.methods.safeguard_reference import reference as reference  # noqa: E402
+from clrecon.methods.safeguard_reference import (  # noqa: E402
+    reference_of_halves as reference_of_halves,
+)
 
 
 class Safeguarded(Pipeline):
@@ -160,8 +109,8 @@ class Safeguarded(Pipeline):
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
                  full: Pipeline | None = None, views: bool = True, joint: bool = True,
-                 guided: int = 0):
-        self._flags = dict(views=views, joint=joint, guided=guided)
+                 guided: int = 0, guide_blend: bool = True):
+        self._flags = dict(views=views, joint=joint, guided=guided, guide_blend=guide_blend)
         if info.spp < 2:
             raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent "
                              f"halves), the frame has {info.spp}")
@@ -237,13 +186,20 @@ class Safeguarded(Pipeline):
                                   self._joint_step()))
             steps.append(Step(f"{method} (halves)", half_fields, ("ma", "mb"),
                               self._halves_step(inner_fields)))
-        # the halves' images the statistics read: the method's, or their refinements
-        self.half_images = ("qa", "qb") if self.guided else ("ma", "mb")
+        # the halves' images the statistics read: the method's, or their refinements (each
+        # blended toward the method's own where that is estimated the better: guide_blend)
+        self.guide_blend = bool(self.guided) and bool(guide_blend)
+        self.half_images = ("ba", "bb") if self.guide_blend else \
+            ("qa", "qb") if self.guided else ("ma", "mb")
         if self.guided:
             self.guide_passes = GuidedPasses(context, self.guided)
             temps |= self.guide_passes.temporaries(info.width, info.height)
             steps.append(Step("guided", ("color", "ma", "mb"), ("qa", "qb"),
                               self._guided_step()))
+        if self.guide_blend:
+            temps |= {"ba": npx * 12, "bb": npx * 12}
+            steps.append(Step("guided_blend", ("qa", "qb", "ma", "mb"), ("ba", "bb"),
+                              self._guide_blend_step()))
         images = () if is_box else self.half_images if self.halves_mean else \
             ("m",) + self.half_images
         steps.append(Step("safeguard_stats", ("color",) + images,
@@ -329,9 +285,27 @@ class Safeguarded(Pipeline):
     def _guided_step(self):
         def run(queue, f, wait_for):
             b = f.buffers
-            return self.guide_passes(queue, b["color"], b["ma"], b["mb"], b["guided_y"],
-                                     b["guided_d"], b["guided_coef"], b["qa"], b["qb"],
-                                     f.width, f.height, f.spp, wait_for)
+            return self.guide_passes(queue, b["color"], b["ma"], b["mb"], b["guided_planes"],
+                                     b["guided_coef"], b["qa"], b["qb"], f.width, f.height,
+                                     f.spp, wait_for)
+        return run
+
+    def _guide_blend_step(self):
+        """The safeguard's estimator with the refined halves in place of box's: per pixel
+        the weight of the method's image against the refinement, then each half blended
+        with it (the halves stay independent but for the shared weight)."""
+        def run(queue, f, wait_for):
+            b, p = f.buffers, self.passes
+            ev0 = p.run_stats(queue, b["color"], b["m"], b["ma"], b["mb"], b["box"],
+                              b["stats"], f.width, f.height, f.spp, 2, wait_for,
+                              ua=b["qa"], ub=b["qb"])
+            ev1 = p.run_rows(queue, b["stats"], b["rows"], f.width, f.height, [ev0])
+            evs = [("guided_blend", ev0), ("guided_blend", ev1)]
+            for q, m, out in (("qa", "ma", "ba"), ("qb", "mb", "bb")):
+                evs.append(("guided_blend", p.run_blend_only(
+                    queue, b["rows"], b[q], b[m], b[out], b["error"], f.width, f.height,
+                    MODE_BLEND, 0, [ev1])))
+            return evs
         return run
 
     def _stats_step(self):
@@ -365,6 +339,7 @@ class Safeguarded(Pipeline):
         d["safeguard"] = self.mode == MODE_BLEND
         if self.guided:
             d["guided"] = self.guided
+            d["guide_blend"] = self.guide_blend
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True

@@ -75,24 +75,41 @@ class SafeguardPasses:
                                           wait_for=wait_for)
 
     def run_stats(self, queue, color, m, ma, mb, box, stats, w, h, spp, has_method,
-                  wait_for=None):
+                  wait_for=None, ua=None, ub=None):
         """has_method: 0 box alone, 1 with the method's image m, 2 m written as the halves'
-        mean. One work-item per column of the planes (the padding's too)."""
+        mean. ``ua``, ``ub``: the reference's halves as images (box is then their mean)
+        instead of the samples' means. One work-item per column of the planes (the
+        padding's too)."""
         ha, _ = halves(spp)
         sp = self.stats_pitch(w)
+        ref = ua is not None
         self.stats.set_args(color, m, ma, mb, box, stats, np.int32(w), np.int32(h),
-                            np.int32(spp), np.int32(ha), np.int32(has_method), np.int32(sp))
+                            np.int32(spp), np.int32(ha), np.int32(has_method), np.int32(sp),
+                            ua if ref else color, ub if ref else color, np.int32(ref))
         return cl.enqueue_nd_range_kernel(queue, self.stats, (sp, h), None, wait_for=wait_for)
 
     def run_blend(self, queue, stats, rows, box, m, out, error, w, h, mode, write_error,
                   wait_for=None):
         """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
         ("safeguard_blend", ev)]."""
+        ev = self.run_rows(queue, stats, rows, w, h, wait_for)
+        return [("safeguard_rows", ev), ("safeguard_blend", self.run_blend_only(
+            queue, rows, box, m, out, error, w, h, mode, write_error, [ev]))]
+
+    def run_rows(self, queue, stats, rows, w, h, wait_for=None):
+        """The windowed sums' row segments alone."""
         sp, rp = self.stats_pitch(w), self.rows_pitch(w)
-        items = (rp // self.vw, h)
         self.rows.set_args(stats, rows, np.int32(w), np.int32(h), np.int32(sp), np.int32(rp))
-        ev = cl.enqueue_nd_range_kernel(queue, self.rows, items, None, wait_for=wait_for)
+        return cl.enqueue_nd_range_kernel(queue, self.rows, (rp // self.vw, h), None,
+                                          wait_for=wait_for)
+
+    def run_blend_only(self, queue, rows, box, m, out, error, w, h, mode, write_error,
+                       wait_for=None):
+        """The blend from row segments already computed (the same weights for any box and
+        m: the guided refinement blends each half with them). ``out`` may be ``box`` or
+        ``m`` (a work-item reads them at its own pixels only)."""
+        rp = self.rows_pitch(w)
         self.blend.set_args(rows, box, m, out, error, np.int32(w), np.int32(h), np.int32(rp),
                             np.int32(mode), np.int32(write_error))
-        return [("safeguard_rows", ev), ("safeguard_blend", cl.enqueue_nd_range_kernel(
-            queue, self.blend, items, None, wait_for=[ev]))]
+        return cl.enqueue_nd_range_kernel(queue, self.blend, (rp // self.vw, h), None,
+                                          wait_for=wait_for)

@@ -30,6 +30,11 @@ def test_trade_variants():
     assert {m for _, m, _ in every} == {m for m in TRADES if m in METHODS}
     with pytest.raises(ValueError, match="unknown 'nope'"):
         trade_variants(["nope"])
+    picked = trade_variants(["layered", "splat"], settings=["splat guided", "layered guided"])
+    assert [v[0] for v in picked] == ["box", "layered guided", "splat guided"]
+    assert picked[1][2]["guided"] == 2 and picked[1][2]["safeguard"] is False
+    with pytest.raises(ValueError, match="settings: unknown"):
+        trade_variants(["sweep"], settings=["layered guided"])
 
 
 def test_trade_end_to_end(device, tmp_path):

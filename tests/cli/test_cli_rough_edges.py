@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import clrecon.scenes
+from clrecon.bench.trade import TRADES
 from clrecon.cli import build_parser, main
 from clrecon.core import device as cldev
 from clrecon.core.errors import KernelBuildError
@@ -95,7 +96,9 @@ def test_trade_says_what_it_runs_and_how_long(tmp_path, capsys):
     lines = capsys.readouterr().err.splitlines()
     assert lines, "trade printed nothing on stderr"
     first = lines[0]
-    assert "1 scenes x 2 spp" in first and "x 6 settings = 12 measurements" in first, first
+    n = 1 + len(TRADES["sweep"])  # box and sweep's settings
+    assert "1 scenes x 2 spp" in first and f"x {n} settings = {2 * n} measurements" in first, \
+        first
     assert "1 paired round" in first and "1 references to render at 4 spp" in first, first
     assert any("left" in line and "spheres at 2 spp" in line for line in lines), lines
     # a second run finds the reference cached and says so

@@ -43,10 +43,11 @@ VARIANTS = [
     ("splat-1-layer", "splat", {"layers": 1}),
     ("box-error", "box", {"estimate_error": True}),
     ("sweep-safeguard-error", "sweep", {"sort": "block", "estimate_error": True}),
+    ("splat-guided", "splat", {"guided": 2, "safeguard": True}),
 ]
 # the papers' methods alone, unless the variant is about the safeguard
-VARIANTS = [(v, m, k if m == "box" or "estimate_error" in k else {**k, "safeguard": False})
-            for v, m, k in VARIANTS]
+VARIANTS = [(v, m, k if m == "box" or "estimate_error" in k or "safeguard" in k
+             else {**k, "safeguard": False}) for v, m, k in VARIANTS]
 
 
 def trusted() -> cldev.Device:

@@ -1,0 +1,83 @@
+"""The safeguard's NumPy reference (:mod:`clrecon.methods.safeguard` has the derivation):
+the image and error estimate from the unbiased estimate's halves and the method's images,
+in float64, as ``kernels/safeguard.cl`` computes them."""
+from __future__ import annotations
+
+import numpy as np
+
+from clrecon.methods.safeguard_passes import halves
+
+_FLT_MAX = float(np.finfo(np.float32).max)  # the error image saturates there
+
+#: the blend kernel's modes
+MODE_BOX, MODE_METHOD, MODE_BLEND = 0, 1, 2
+
+
+# -- NumPy reference -------------------------------------------------------------------------
+def _lum2(d: np.ndarray) -> np.ndarray:
+    return (d.astype(np.float64) ** 2).mean(-1)
+
+
+def _window_mean(a: np.ndarray, r: int) -> np.ndarray:
+    """Mean over the (2r+1)^2 window, counting only pixels inside the image."""
+    h, w = a.shape
+    p = np.pad(a, r)
+    ones = np.pad(np.ones_like(a), r)
+    s = sum(p[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
+    n = sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
+    return s / n
+
+
+def _window_count(shape, r: int) -> np.ndarray:
+    """How many pixels of the (2r+1)^2 window lie inside the image."""
+    h, w = shape
+    ones = np.pad(np.ones(shape), r)
+    return sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
+
+
+def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND):
+    """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
+    method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
+    the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``."""
+    s = color.shape[2]
+    ha, hb = halves(s)
+    if m is None and ma is not None:
+        m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
+    c = color.astype(np.float64)
+    return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
+                               mode)[:2]
+
+
+def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
+                        mode: int = MODE_BLEND):
+    """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
+    ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
+    half estimates, as the guided refinement's blend toward its guide takes) and the
+    method's images; float64. ``w``: the blend's weight of the method (None unless
+    ``mode`` is the blend)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    s = ha + hb
+    box = (ha * a + hb * b) / s
+    k = ha * hb / (s * s)
+    vb = k * _lum2(a - b)
+    vb3 = _window_mean(vb, 1)
+    if mode == MODE_BOX:
+        return box, np.minimum(vb3, _FLT_MAX), None
+    if m is None:
+        m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
+    m = m.astype(np.float64)
+    d2 = _lum2(m - box)
+    vm = k * _lum2(ma.astype(np.float64) - mb)
+    e = d2 - vm - vb
+    mu3 = _window_mean(e, 1)
+    n3 = _window_count(e.shape, 1)
+    se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
+    b2 = np.maximum(0.0, np.maximum(_window_mean(e, 3), mu3 - 2.0 * se3))
+    err_m = b2 + _window_mean(vm, 1)
+    if mode == MODE_METHOD:
+        return m, np.minimum(err_m, _FLT_MAX), None
+    vbw = np.maximum(vb3, _window_mean(vb, 3))
+    den = vbw + err_m
+    w = np.where(den > 0, vbw / np.where(den > 0, den, 1), 0.0)
+    img = box + w[..., None] * (m - box)
+    return img, np.minimum(w * w * err_m + (1 - w) ** 2 * vbw, _FLT_MAX), w
