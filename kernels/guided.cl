@@ -12,16 +12,16 @@
  *   guided_apply  per pixel p and half h: q = g_p + mean over the windows k holding p of
  *                 A_k^T (g_p - g_k) + beta_k
  * Arguments: means: color (H, W, S, 3), ga, gb (H, W, 3) the method's images of the halves,
- * planes (GP_PLANES planes of H * W floats, `ps` floats apart); fit: planes, coef (2, H, W,
- * 12): per half and window A row-major (guide channel, output channel) then beta (radiance),
- * fa, fb: var(yA) = fa d^2, var(yB) = fb d^2; apply: ga, gb, coef, qa, qb (H, W, 3).
+ * planes (GP_PLANES planes of H * W floats, `ps` floats apart); fit: planes, coef (2 x 12
+ * planes, `ps` apart): per half and window A row-major (guide channel, output channel) then
+ * beta (radiance), fa, fb: var(yA) = fa d^2, var(yB) = fb d^2; apply: planes, coef, qa, qb
+ * (H, W, 3).
  * Layout: the fit reads seven of its inputs at every tap, as planes: one tap's values are
  * then 4 bytes apart for neighbouring pixels instead of 12. The planes' pitch `ps` is not a
  * multiple of 4 KiB (the host pads it): at 512x512 planes 1 MiB apart map every tap's
  * seven loads to one L1 set, and the fit took 67 ms against 40 at 500x500.
- * Launch: (W, H) for means, (W, H, 2) for fit and apply (dim 2: the half). One pixel a
- * work-item.
- * Compile-time: GR, the window radius (1..8).
+ * Launch: (W, H) for means, (ceil(W / GF_VW), H, 2) for fit and apply (dim 2: the half).
+ * Compile-time: GR, the window radius (1..8); GF_VW, windows a work-item (1, 8 or 16).
  */
 #include "common.h"
 
@@ -79,66 +79,20 @@ __kernel void guided_means(__global const float *restrict color,
                                             fmax(fabs(b0), fmax(fabs(b1), fabs(b2)))));
 }
 
-__kernel void guided_fit(__global const float *restrict planes, __global float *restrict coef,
-                         int W, int H, float fa, float fb, int ps)
+/* the fit's sums over a window, in units of its scale s: sum u (3), sum e (3), sum u u^T (6),
+ * sum u e^T (9, row = guide channel), sum d^2 */
+#define GF_SUMS 22
+
+/* A and beta of one window from its sums (n pixels, scale s), into out[i * cs], i < 12 */
+__attribute__((always_inline)) inline void guided_solve(const float *acc, float s, float n,
+                                                         float fv, __global float *out,
+                                                         size_t cs)
 {
-    int x = get_global_id(0), yy = get_global_id(1), h = get_global_id(2);
-    if (x >= W || yy >= H) return;
-    size_t np = (size_t)ps;
-    __global const float *g0p = planes + GP_G(h) * np, *g1p = g0p + np, *g2p = g1p + np;
-    __global const float *y0p = planes + GP_Y(h) * np, *y1p = y0p + np, *y2p = y1p + np;
-    __global const float *dp = planes + GP_D * np, *mp = planes + GP_M(h) * np;
-    float fv = h ? fb : fa;
-    size_t k = (size_t)yy * W + x;
-    float c0 = g0p[k], c1 = g1p[k], c2 = g2p[k];
-    int x0 = max(x - GR, 0), x1 = min(x + GR, W - 1);
-    int y0 = max(yy - GR, 0), y1 = min(yy + GR, H - 1);
-    /* interior windows run uniform loops (the same trip count and unit-stride addresses
-     * for neighbouring work-items: PoCL vectorises them across work-items); windows that
-     * the image clips run the clipped loops */
-    const int inner = x >= GR && x < W - GR && yy >= GR && yy < H - GR;
-    /* the window's scale: its largest absolute guide, box value or halves' difference */
-    float s = 0.0f;
-    if (inner) {
-        for (int dj = -GR; dj <= GR; ++dj)
-            for (int di = -GR; di <= GR; ++di)
-                s = fmax(s, mp[k + (ptrdiff_t)dj * W + di]);
-    } else {
-        for (int j = y0; j <= y1; ++j)
-            for (int i = x0; i <= x1; ++i)
-                s = fmax(s, mp[(size_t)j * W + i]);
-    }
-    /* an all-zero window: every sum 0, so A = 0 and beta = 0 */
-    float is = s > 0.0f ? 1.0f / s : 0.0f;
-    float su0 = 0, su1 = 0, su2 = 0, se0 = 0, se1 = 0, se2 = 0;
-    float s00 = 0, s01 = 0, s02 = 0, s11 = 0, s12 = 0, s22 = 0;
-    float e00 = 0, e01 = 0, e02 = 0, e10 = 0, e11 = 0, e12 = 0, e20 = 0, e21 = 0, e22 = 0;
-    float sdd = 0;
-#define GUIDED_FIT_TAP(q) do { \
-        float g0 = g0p[q], g1 = g1p[q], g2 = g2p[q]; \
-        float u0 = (g0 - c0) * is, u1 = (g1 - c1) * is, u2 = (g2 - c2) * is; \
-        float r0 = (y0p[q] - g0) * is, r1 = (y1p[q] - g1) * is, r2 = (y2p[q] - g2) * is; \
-        float dq = dp[q] * is; \
-        su0 += u0; su1 += u1; su2 += u2; \
-        se0 += r0; se1 += r1; se2 += r2; \
-        s00 += u0 * u0; s01 += u0 * u1; s02 += u0 * u2; \
-        s11 += u1 * u1; s12 += u1 * u2; s22 += u2 * u2; \
-        e00 += u0 * r0; e01 += u0 * r1; e02 += u0 * r2; \
-        e10 += u1 * r0; e11 += u1 * r1; e12 += u1 * r2; \
-        e20 += u2 * r0; e21 += u2 * r1; e22 += u2 * r2; \
-        sdd += dq * dq; \
-    } while (0)
-    if (inner) {
-        for (int dj = -GR; dj <= GR; ++dj)
-            for (int di = -GR; di <= GR; ++di)
-                GUIDED_FIT_TAP(k + (ptrdiff_t)dj * W + di);
-    } else {
-        for (int j = y0; j <= y1; ++j)
-            for (int i = x0; i <= x1; ++i)
-                GUIDED_FIT_TAP((size_t)j * W + i);
-    }
-#undef GUIDED_FIT_TAP
-    float n = (float)((x1 - x0 + 1) * (y1 - y0 + 1)), in = 1.0f / n;
+    float in = 1.0f / n;
+    float su0 = acc[0], su1 = acc[1], su2 = acc[2], se0 = acc[3], se1 = acc[4], se2 = acc[5];
+    float s00 = acc[6], s01 = acc[7], s02 = acc[8], s11 = acc[9], s12 = acc[10], s22 = acc[11];
+    float e00 = acc[12], e01 = acc[13], e02 = acc[14], e10 = acc[15], e11 = acc[16];
+    float e12 = acc[17], e20 = acc[18], e21 = acc[19], e22 = acc[20], sdd = acc[21];
     float mu0 = su0 * in, mu1 = su1 * in, mu2 = su2 * in;
     float me0 = se0 * in, me1 = se1 * in, me2 = se2 * in;
     /* covariance of the guide, and of the guide with the residual */
@@ -181,46 +135,192 @@ __kernel void guided_fit(__global const float *restrict planes, __global float *
     float b0 = me0 - (a0 * mu0 + a3 * mu1 + a6 * mu2);
     float b1 = me1 - (a1 * mu0 + a4 * mu1 + a7 * mu2);
     float b2 = me2 - (a2 * mu0 + a5 * mu1 + a8 * mu2);
-    __global float *out = coef + ((size_t)h * W * H + k) * 12;
-    out[0] = a0; out[1] = a1; out[2] = a2; out[3] = a3; out[4] = a4; out[5] = a5;
-    out[6] = a6; out[7] = a7; out[8] = a8;
-    out[9] = b0 * s; out[10] = b1 * s; out[11] = b2 * s;
+    out[0] = a0; out[cs] = a1; out[2 * cs] = a2; out[3 * cs] = a3; out[4 * cs] = a4;
+    out[5 * cs] = a5; out[6 * cs] = a6; out[7 * cs] = a7; out[8 * cs] = a8;
+    out[9 * cs] = b0 * s; out[10 * cs] = b1 * s; out[11 * cs] = b2 * s;
 }
 
-__kernel void guided_apply(__global const float *restrict ga, __global const float *restrict gb,
-                           __global const float *restrict coef, __global float *restrict qa,
-                           __global float *restrict qb, int W, int H)
+/* one window of pixel (x, yy), clipped to the image: the sums, then the solve */
+__attribute__((always_inline)) inline void guided_fit_pixel(
+    __global const float *g0p, __global const float *g1p, __global const float *g2p,
+    __global const float *y0p, __global const float *y1p, __global const float *y2p,
+    __global const float *dp, __global const float *mp, int W, int H, int x, int yy, float fv,
+    __global float *out, size_t cs)
 {
-    int x = get_global_id(0), yy = get_global_id(1), h = get_global_id(2);
-    if (x >= W || yy >= H) return;
-    __global const float *g = h ? gb : ga;
-    __global float *q = h ? qb : qa;
-    __global const float *ch = coef + (size_t)h * W * H * 12;
+    size_t k = (size_t)yy * W + x;
+    float c0 = g0p[k], c1 = g1p[k], c2 = g2p[k];
+    int x0 = max(x - GR, 0), x1 = min(x + GR, W - 1);
+    int y0 = max(yy - GR, 0), y1 = min(yy + GR, H - 1);
+    /* the window's scale: its largest absolute guide, box value or halves' difference */
+    float s = 0.0f;
+    for (int j = y0; j <= y1; ++j)
+        for (int i = x0; i <= x1; ++i)
+            s = fmax(s, mp[(size_t)j * W + i]);
+    /* an all-zero window: every sum 0, so A = 0 and beta = 0 */
+    float is = s > 0.0f ? 1.0f / s : 0.0f;
+    float acc[GF_SUMS];
+    for (int i = 0; i < GF_SUMS; ++i) acc[i] = 0.0f;
+    for (int j = y0; j <= y1; ++j)
+        for (int i = x0; i <= x1; ++i) {
+            size_t q = (size_t)j * W + i;
+            float g0 = g0p[q], g1 = g1p[q], g2 = g2p[q];
+            float u0 = (g0 - c0) * is, u1 = (g1 - c1) * is, u2 = (g2 - c2) * is;
+            float r0 = (y0p[q] - g0) * is, r1 = (y1p[q] - g1) * is, r2 = (y2p[q] - g2) * is;
+            float dq = dp[q] * is;
+            acc[0] += u0; acc[1] += u1; acc[2] += u2;
+            acc[3] += r0; acc[4] += r1; acc[5] += r2;
+            acc[6] += u0 * u0; acc[7] += u0 * u1; acc[8] += u0 * u2;
+            acc[9] += u1 * u1; acc[10] += u1 * u2; acc[11] += u2 * u2;
+            acc[12] += u0 * r0; acc[13] += u0 * r1; acc[14] += u0 * r2;
+            acc[15] += u1 * r0; acc[16] += u1 * r1; acc[17] += u1 * r2;
+            acc[18] += u2 * r0; acc[19] += u2 * r1; acc[20] += u2 * r2;
+            acc[21] += dq * dq;
+        }
+    guided_solve(acc, s, (float)((x1 - x0 + 1) * (y1 - y0 + 1)), fv, out, cs);
+}
+
+#ifndef GF_VW
+#define GF_VW 1
+#endif
+#if GF_VW == 8
+#define GF_V float8
+#define GF_LOAD(p) vload8(0, p)
+#define GF_STORE(v, p) vstore8(v, 0, p)
+#elif GF_VW == 16
+#define GF_V float16
+#define GF_LOAD(p) vload16(0, p)
+#define GF_STORE(v, p) vstore16(v, 0, p)
+#elif GF_VW != 1
+#error "GF_VW must be 1, 8 or 16"
+#endif
+
+/* GF_VW windows of a row a work-item: pixels x0 .. x0 + GF_VW - 1. Where all their windows
+ * lie inside the image the sums run as GF_VW lanes of a vector (PoCL 3.1 runs kernels with
+ * vector values one work-item at a time; explicit lanes are what vectorises on a CPU), the
+ * solve lane by lane; elsewhere each pixel runs guided_fit_pixel. */
+__kernel void guided_fit(__global const float *restrict planes, __global float *restrict coef,
+                         int W, int H, float fa, float fb, int ps)
+{
+    int x0 = get_global_id(0) * GF_VW, yy = get_global_id(1), h = get_global_id(2);
+    if (x0 >= W || yy >= H) return;
+    size_t np = (size_t)ps;
+    __global const float *g0p = planes + GP_G(h) * np, *g1p = g0p + np, *g2p = g1p + np;
+    __global const float *y0p = planes + GP_Y(h) * np, *y1p = y0p + np, *y2p = y1p + np;
+    __global const float *dp = planes + GP_D * np, *mp = planes + GP_M(h) * np;
+    float fv = h ? fb : fa;
+    __global float *out = coef + (size_t)h * 12 * np + (size_t)yy * W + x0;
+#if GF_VW > 1
+    if (x0 >= GR && x0 + GF_VW - 1 + GR < W && yy >= GR && yy + GR < H) {
+        size_t k = (size_t)yy * W + x0;
+        GF_V c0 = GF_LOAD(g0p + k), c1 = GF_LOAD(g1p + k), c2 = GF_LOAD(g2p + k);
+        GF_V s = 0.0f;
+        for (int dj = -GR; dj <= GR; ++dj)
+            for (int di = -GR; di <= GR; ++di)
+                s = fmax(s, GF_LOAD(mp + k + (ptrdiff_t)dj * W + di));
+        GF_V is = select((GF_V)(0.0f), 1.0f / s, s > 0.0f);
+        GF_V v[GF_SUMS];
+        for (int i = 0; i < GF_SUMS; ++i) v[i] = 0.0f;
+        for (int dj = -GR; dj <= GR; ++dj)
+            for (int di = -GR; di <= GR; ++di) {
+                size_t q = k + (ptrdiff_t)dj * W + di;
+                GF_V g0 = GF_LOAD(g0p + q), g1 = GF_LOAD(g1p + q), g2 = GF_LOAD(g2p + q);
+                GF_V u0 = (g0 - c0) * is, u1 = (g1 - c1) * is, u2 = (g2 - c2) * is;
+                GF_V r0 = (GF_LOAD(y0p + q) - g0) * is, r1 = (GF_LOAD(y1p + q) - g1) * is;
+                GF_V r2 = (GF_LOAD(y2p + q) - g2) * is;
+                GF_V dq = GF_LOAD(dp + q) * is;
+                v[0] += u0; v[1] += u1; v[2] += u2;
+                v[3] += r0; v[4] += r1; v[5] += r2;
+                v[6] += u0 * u0; v[7] += u0 * u1; v[8] += u0 * u2;
+                v[9] += u1 * u1; v[10] += u1 * u2; v[11] += u2 * u2;
+                v[12] += u0 * r0; v[13] += u0 * r1; v[14] += u0 * r2;
+                v[15] += u1 * r0; v[16] += u1 * r1; v[17] += u1 * r2;
+                v[18] += u2 * r0; v[19] += u2 * r1; v[20] += u2 * r2;
+                v[21] += dq * dq;
+            }
+        float lanes[GF_SUMS * GF_VW], sl[GF_VW];
+        for (int i = 0; i < GF_SUMS; ++i) GF_STORE(v[i], lanes + i * GF_VW);
+        GF_STORE(s, sl);
+        for (int l = 0; l < GF_VW; ++l) {
+            float acc[GF_SUMS];
+            for (int i = 0; i < GF_SUMS; ++i) acc[i] = lanes[i * GF_VW + l];
+            guided_solve(acc, sl[l], (float)((2 * GR + 1) * (2 * GR + 1)), fv, out + l, np);
+        }
+        return;
+    }
+#endif
+    for (int l = 0; l < GF_VW && x0 + l < W; ++l)
+        guided_fit_pixel(g0p, g1p, g2p, y0p, y1p, y2p, dp, mp, W, H, x0 + l, yy, fv, out + l,
+                         np);
+}
+
+/* the refined value of pixel (x, yy), its windows clipped to the image */
+__attribute__((always_inline)) inline void guided_apply_pixel(
+    __global const float *g0p, __global const float *g1p, __global const float *g2p,
+    __global const float *ch, size_t np, int W, int H, int x, int yy, __global float *q)
+{
     size_t p = (size_t)yy * W + x;
-    float p0 = g[3 * p], p1 = g[3 * p + 1], p2 = g[3 * p + 2];
+    float p0 = g0p[p], p1 = g1p[p], p2 = g2p[p];
     int x0 = max(x - GR, 0), x1 = min(x + GR, W - 1);
     int y0 = max(yy - GR, 0), y1 = min(yy + GR, H - 1);
     float o0 = 0.0f, o1 = 0.0f, o2 = 0.0f;
-#define GUIDED_APPLY_TAP(kk) do { \
-        size_t k = (kk); \
-        __global const float *a = ch + k * 12; \
-        float u0 = p0 - g[3 * k], u1 = p1 - g[3 * k + 1], u2 = p2 - g[3 * k + 2]; \
-        o0 += a[0] * u0 + a[3] * u1 + a[6] * u2 + a[9]; \
-        o1 += a[1] * u0 + a[4] * u1 + a[7] * u2 + a[10]; \
-        o2 += a[2] * u0 + a[5] * u1 + a[8] * u2 + a[11]; \
-    } while (0)
-    if (x >= GR && x < W - GR && yy >= GR && yy < H - GR) {  /* uniform: see guided_fit */
-        for (int dj = -GR; dj <= GR; ++dj)
-            for (int di = -GR; di <= GR; ++di)
-                GUIDED_APPLY_TAP(p + (ptrdiff_t)dj * W + di);
-    } else {
-        for (int j = y0; j <= y1; ++j)
-            for (int i = x0; i <= x1; ++i)
-                GUIDED_APPLY_TAP((size_t)j * W + i);
-    }
-#undef GUIDED_APPLY_TAP
+    for (int j = y0; j <= y1; ++j)
+        for (int i = x0; i <= x1; ++i) {
+            size_t k = (size_t)j * W + i;
+            __global const float *a = ch + k;
+            float u0 = p0 - g0p[k], u1 = p1 - g1p[k], u2 = p2 - g2p[k];
+            o0 += a[0] * u0 + a[3 * np] * u1 + a[6 * np] * u2 + a[9 * np];
+            o1 += a[np] * u0 + a[4 * np] * u1 + a[7 * np] * u2 + a[10 * np];
+            o2 += a[2 * np] * u0 + a[5 * np] * u1 + a[8 * np] * u2 + a[11 * np];
+        }
     float in = 1.0f / (float)((x1 - x0 + 1) * (y1 - y0 + 1));
     q[3 * p] = p0 + o0 * in;
     q[3 * p + 1] = p1 + o1 * in;
     q[3 * p + 2] = p2 + o2 * in;
+}
+
+/* GF_VW pixels of a row a work-item, as lanes where all their windows lie inside the
+ * image (see guided_fit) */
+__kernel void guided_apply(__global const float *restrict planes,
+                           __global const float *restrict coef, __global float *restrict qa,
+                           __global float *restrict qb, int W, int H, int ps)
+{
+    int x0 = get_global_id(0) * GF_VW, yy = get_global_id(1), h = get_global_id(2);
+    if (x0 >= W || yy >= H) return;
+    size_t np = (size_t)ps;
+    __global const float *g0p = planes + GP_G(h) * np, *g1p = g0p + np, *g2p = g1p + np;
+    __global const float *ch = coef + (size_t)h * 12 * np;
+    __global float *q = h ? qb : qa;
+#if GF_VW > 1
+    if (x0 >= GR && x0 + GF_VW - 1 + GR < W && yy >= GR && yy + GR < H) {
+        size_t p = (size_t)yy * W + x0;
+        GF_V p0 = GF_LOAD(g0p + p), p1 = GF_LOAD(g1p + p), p2 = GF_LOAD(g2p + p);
+        GF_V o0 = 0.0f, o1 = 0.0f, o2 = 0.0f;
+        for (int dj = -GR; dj <= GR; ++dj)
+            for (int di = -GR; di <= GR; ++di) {
+                size_t k = p + (ptrdiff_t)dj * W + di;
+                __global const float *a = ch + k;
+                GF_V u0 = p0 - GF_LOAD(g0p + k), u1 = p1 - GF_LOAD(g1p + k);
+                GF_V u2 = p2 - GF_LOAD(g2p + k);
+                o0 += GF_LOAD(a) * u0 + GF_LOAD(a + 3 * np) * u1 + GF_LOAD(a + 6 * np) * u2 +
+                      GF_LOAD(a + 9 * np);
+                o1 += GF_LOAD(a + np) * u0 + GF_LOAD(a + 4 * np) * u1 +
+                      GF_LOAD(a + 7 * np) * u2 + GF_LOAD(a + 10 * np);
+                o2 += GF_LOAD(a + 2 * np) * u0 + GF_LOAD(a + 5 * np) * u1 +
+                      GF_LOAD(a + 8 * np) * u2 + GF_LOAD(a + 11 * np);
+            }
+        const float in = 1.0f / (float)((2 * GR + 1) * (2 * GR + 1));
+        float r0[GF_VW], r1[GF_VW], r2[GF_VW];
+        GF_STORE(p0 + o0 * in, r0);
+        GF_STORE(p1 + o1 * in, r1);
+        GF_STORE(p2 + o2 * in, r2);
+        for (int l = 0; l < GF_VW; ++l) {
+            q[3 * (p + l)] = r0[l];
+            q[3 * (p + l) + 1] = r1[l];
+            q[3 * (p + l) + 2] = r2[l];
+        }
+        return;
+    }
+#endif
+    for (int l = 0; l < GF_VW && x0 + l < W; ++l)
+        guided_apply_pixel(g0p, g1p, g2p, ch, np, W, H, x0 + l, yy, q);
 }

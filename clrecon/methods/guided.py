@@ -49,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from clrecon.core.device import get_kernel
+from clrecon.core.device import cpu_context, get_kernel
 from clrecon.methods.safeguard_reference import MODE_BLEND, reference_of_halves
 
 #: floats a window's coefficients take: A (3x3, row = guide channel), then beta (3)
@@ -142,11 +142,16 @@ def reference(color: np.ndarray, ga: np.ndarray, gb: np.ndarray, r: int):
 class GuidedPasses:
     """The three kernels of ``kernels/guided.cl`` for window radius ``r``."""
 
-    def __init__(self, context: cl.Context, r: int):
+    def __init__(self, context: cl.Context, r: int, vw: int | None = None):
+        """``vw``: windows a work-item of the fit (1, 8 or 16; default 8 on a CPU, where the
+        sums run as the lanes of a float8, 1 elsewhere)."""
         self.r = check_radius(r)
         if self.r == 0:
             raise ValueError("guided: radius 0 is the refinement off; nothing to build")
-        defines = {"GR": self.r}
+        self.vw = (8 if cpu_context(context) else 1) if vw is None else int(vw)
+        if self.vw not in (1, 8, 16):
+            raise ValueError(f"guided: vector width {vw} is not 1, 8 or 16")
+        defines = {"GR": self.r, "GF_VW": self.vw}
         self.means = get_kernel(context, "guided", "guided_means", defines)
         self.fit = get_kernel(context, "guided", "guided_fit", defines)
         self.apply = get_kernel(context, "guided", "guided_apply", defines)
@@ -158,7 +163,8 @@ class GuidedPasses:
         two refined images."""
         npx = int(width) * int(height)
         return {"guided_planes": PLANES * plane_pitch(width, height) * 4,
-                "guided_coef": 2 * npx * COEF * 4, "qa": npx * 12, "qb": npx * 12}
+                "guided_coef": 2 * COEF * plane_pitch(width, height) * 4, "qa": npx * 12,
+                "qb": npx * 12}
 
     def __call__(self, queue, color, ga, gb, planes, coef, qa, qb, w, h, spp, wait_for=None):
         """[("guided_means", ev), ("guided_fit", ev), ("guided_apply", ev)]."""
@@ -170,9 +176,11 @@ class GuidedPasses:
         ev0 = cl.enqueue_nd_range_kernel(queue, self.means, (w, h), None, wait_for=wait_for)
         self.fit.set_args(planes, coef, np.int32(w), np.int32(h), np.float32(hb / spp),
                           np.float32(ha / spp), ps)
-        ev1 = cl.enqueue_nd_range_kernel(queue, self.fit, (w, h, 2), None, wait_for=[ev0])
-        self.apply.set_args(ga, gb, coef, qa, qb, np.int32(w), np.int32(h))
-        ev2 = cl.enqueue_nd_range_kernel(queue, self.apply, (w, h, 2), None, wait_for=[ev1])
+        ev1 = cl.enqueue_nd_range_kernel(queue, self.fit, (-(-w // self.vw), h, 2), None,
+                                         wait_for=[ev0])
+        self.apply.set_args(planes, coef, qa, qb, np.int32(w), np.int32(h), ps)
+        ev2 = cl.enqueue_nd_range_kernel(queue, self.apply, (-(-w // self.vw), h, 2), None,
+                                         wait_for=[ev1])
         return [("guided_means", ev0), ("guided_fit", ev1), ("guided_apply", ev2)]
 
 

@@ -11,7 +11,7 @@ from conftest import assert_close
 from clrecon.methods import guided as gd
 
 
-def _device_refine(device, color, ga, gb, r):
+def _device_refine(device, color, ga, gb, r, vw=None):
     ctx, q = device.context, device.queue
     h, w, s, _ = color.shape
     mf = cl.mem_flags
@@ -20,7 +20,7 @@ def _device_refine(device, color, ga, gb, r):
         return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                          hostbuf=np.ascontiguousarray(a, np.float32))
 
-    passes = gd.GuidedPasses(ctx, r)
+    passes = gd.GuidedPasses(ctx, r, vw)
     bufs = {k: cl.Buffer(ctx, mf.READ_WRITE, v) for k, v in passes.temporaries(w, h).items()}
     passes(q, up(color), up(ga), up(gb), bufs["guided_planes"], bufs["guided_coef"],
            bufs["qa"], bufs["qb"], w, h, s)
@@ -43,7 +43,7 @@ def _guides(rng, color):
 
 
 @pytest.mark.parametrize("r", [1, 2, 3])
-@pytest.mark.parametrize("shape", [(13, 17, 5), (9, 6, 2), (1, 11, 8), (20, 3, 4)])
+@pytest.mark.parametrize("shape", [(13, 17, 5), (9, 6, 2), (1, 11, 8), (20, 3, 4), (12, 43, 4)])
 def test_kernels_match_reference(device, rng, r, shape):
     h, w, s = shape
     color = rng.gamma(2.0, 1.0, (h, w, s, 3)).astype(np.float32)
@@ -110,3 +110,21 @@ def test_degenerate_windows(device, rng):
     ra, _ = gd.reference(same, ga, gb, 2)
     assert np.isfinite(qa).all()
     assert_close(qa, ra, rtol=2e-5, atol=2e-5, what="no variance, half A")
+
+
+@pytest.mark.parametrize("vw", [1, 8, 16])
+def test_every_vector_width_matches_reference(device, rng, vw):
+    """Windows a work-item: 1 (GPUs), 8 (CPUs), 16; a frame whose width leaves partial lane
+    groups, interior groups (the lanes' path) and groups the image clips (pixel by pixel)."""
+    h, w, s = 14, 45, 6
+    color = rng.gamma(2.0, 1.0, (h, w, s, 3)).astype(np.float32)
+    ga, gb = _guides(rng, color)
+    qa, qb = _device_refine(device, color, ga, gb, 2, vw)
+    ra, rb = gd.reference(color, ga, gb, 2)
+    assert_close(qa, ra, rtol=2e-5, atol=2e-5, what=f"half A, {vw} lanes")
+    assert_close(qb, rb, rtol=2e-5, atol=2e-5, what=f"half B, {vw} lanes")
+
+
+def test_refused_vector_width(device):
+    with pytest.raises(ValueError, match="vector width 4"):
+        gd.GuidedPasses(device.context, 2, 4)
