@@ -22,8 +22,8 @@
  * the guided refinement's blend toward its guide), stats: four planes
  * (d2, vb, vm, e) of (H, sp) floats, pixel x at column x + 3, sp >= rp + 6, the columns
  * outside the image 0 and e = SG_PAD_E; rows: eight planes of (H, rp) floats, rp a multiple of
- * SG_VW >= W (rows3 = vb3, vm3, e3, ee3; rows7 = e7, vb7, e3max, e7max); blend: out (H, W, 3),
- * error (H, W).
+ * SG_VW >= W (rows3 = vb3, vm3, e3, ee3; rows7 = e7, vb7, e3max, e7max; then ee7); blend:
+ * out (H, W, 3), error (H, W); z7 > 0: the 7x7 bias mean is tested at z7 standard errors.
  * Vector width: safeguard_rows and safeguard_blend run SG_VW consecutive pixels of a row per
  * work-item as floatN (SG_VW 1, 4, 8 or 16; the host passes 16 for CPUs, 1 otherwise). PoCL
  * 3.1 vectorises a kernel across work-items only where its body holds no vector-typed value
@@ -196,7 +196,7 @@ __kernel void safeguard_rows(__global const float *stats, __global float *rows, 
         if (k >= -1 && k <= 1)
             e3max = max(e3max, ex);
     }
-    vfloat vb3 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f, vb7 = 0.0f;
+    vfloat vb3 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f, vb7 = 0.0f, ee7 = 0.0f;
     #pragma unroll
     for (int k = -3; k <= 3; ++k) {
         const vint ex = CONVERT_INT(VLOAD(ep + k));
@@ -206,6 +206,7 @@ __kernel void safeguard_rows(__global const float *stats, __global float *rows, 
         const vfloat e = sd - svm - svb;
         e7 += f7 * e;
         vb7 += f7 * svb;
+        ee7 += (f7 * e) * (f7 * e);
         if (k >= -1 && k <= 1) {
             const vfloat f3 = pow2_nonpos(2 * (ex - e3max));
             vb3 += f3 * svb;
@@ -224,6 +225,7 @@ __kernel void safeguard_rows(__global const float *stats, __global float *rows, 
     VSTORE(vb7, o + 5 * rplane);
     VSTORE(CONVERT_FLOAT(e3max), o + 6 * rplane);
     VSTORE(CONVERT_FLOAT(e7max), o + 7 * rplane);
+    VSTORE(ee7, o + 8 * rplane);
 }
 
 /* mode 0: box (image = box, error = mean3(vb)); 1: the method alone (image = m, error = its
@@ -231,7 +233,7 @@ __kernel void safeguard_rows(__global const float *stats, __global float *rows, 
 __kernel void safeguard_blend(__global const float *rows, __global const float *box,
                               __global const float *m, __global float *out,
                               __global float *error, int width, int height, int rp, int mode,
-                              int write_error)
+                              int write_error, float z7)
 {
     const int x0 = get_global_id(0) * SG_VW, y = get_global_id(1);
     if (x0 >= width || y >= height)
@@ -245,7 +247,7 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
         if (yy >= 0 && yy < height)
             emax = max(emax, CONVERT_INT(VLOAD(col + 7 * rplane + (size_t)yy * rp)));
     }
-    vfloat vb3 = 0.0f, vb7 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f;
+    vfloat vb3 = 0.0f, vb7 = 0.0f, vm3 = 0.0f, e3 = 0.0f, ee3 = 0.0f, e7 = 0.0f, ee7 = 0.0f;
     #pragma unroll
     for (int k = -3; k <= 3; ++k) {
         const int yy = y + k;
@@ -255,6 +257,8 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
         const vfloat f7 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 7 * rplane)) - emax));
         e7 += f7 * VLOAD(r + 4 * rplane);
         vb7 += f7 * VLOAD(r + 5 * rplane);
+        if (z7 > 0.0f)
+            ee7 += (f7 * f7) * VLOAD(r + 8 * rplane);
         if (k >= -1 && k <= 1) {
             const vfloat f3 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 6 * rplane)) - emax));
             vb3 += f3 * VLOAD(r);
@@ -284,7 +288,12 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
      * there) */
     const vfloat mu3 = e3 / n3;
     const vfloat se3 = sqrt(fmax(ee3 / n3 - mu3 * mu3, 0.0f) / n3);
-    const vfloat b2 = fmax(0.0f, fmax(e7 / n7, mu3 - 2.0f * se3));
+    /* with z7 > 0 the 7x7 mean too must stand z7 standard errors above zero (the guided
+     * refinement's chain: its regression removes the bias coherent over its windows) */
+    vfloat mu7 = e7 / n7;
+    if (z7 > 0.0f)
+        mu7 -= z7 * sqrt(fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7);
+    const vfloat b2 = fmax(0.0f, fmax(mu7, mu3 - 2.0f * se3));
     const vfloat err_m = b2 + vm3;
     vfloat w = 0.0f, err = vb3;
     if (mode == 1) {

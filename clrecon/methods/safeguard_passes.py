@@ -19,8 +19,8 @@ from clrecon.core.device import cpu_context, get_kernel
 
 #: the statistics' planes: d2, vb, vm and the exponent
 STAT_PLANES = 4
-#: the row segments' planes: vb3, vm3, e3, ee3 (3 wide) and e7, vb7, e3max, e7max (7 wide)
-ROW_PLANES = 8
+#: the row segments' planes: vb3, vm3, e3, ee3 (3 wide), e7, vb7, e3max, e7max, ee7 (7 wide)
+ROW_PLANES = 9
 #: padding columns on each side of the statistics' planes (the 7-wide window's reach)
 PAD = 3
 
@@ -89,12 +89,13 @@ class SafeguardPasses:
         return cl.enqueue_nd_range_kernel(queue, self.stats, (sp, h), None, wait_for=wait_for)
 
     def run_blend(self, queue, stats, rows, box, m, out, error, w, h, mode, write_error,
-                  wait_for=None):
+                  wait_for=None, z7: float = 0.0):
         """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
-        ("safeguard_blend", ev)]."""
+        ("safeguard_blend", ev)]. ``z7 > 0``: the 7x7 bias mean is tested at ``z7``
+        standard errors, as the 3x3 one at 2."""
         ev = self.run_rows(queue, stats, rows, w, h, wait_for)
         return [("safeguard_rows", ev), ("safeguard_blend", self.run_blend_only(
-            queue, rows, box, m, out, error, w, h, mode, write_error, [ev]))]
+            queue, rows, box, m, out, error, w, h, mode, write_error, [ev], z7))]
 
     def run_rows(self, queue, stats, rows, w, h, wait_for=None):
         """The windowed sums' row segments alone."""
@@ -104,12 +105,12 @@ class SafeguardPasses:
                                           wait_for=wait_for)
 
     def run_blend_only(self, queue, rows, box, m, out, error, w, h, mode, write_error,
-                       wait_for=None):
+                       wait_for=None, z7: float = 0.0):
         """The blend from row segments already computed (the same weights for any box and
         m: the guided refinement blends each half with them). ``out`` may be ``box`` or
         ``m`` (a work-item reads them at its own pixels only)."""
         rp = self.rows_pitch(w)
         self.blend.set_args(rows, box, m, out, error, np.int32(w), np.int32(h), np.int32(rp),
-                            np.int32(mode), np.int32(write_error))
+                            np.int32(mode), np.int32(write_error), np.float32(z7))
         return cl.enqueue_nd_range_kernel(queue, self.blend, (rp // self.vw, h), None,
                                           wait_for=wait_for)

@@ -35,7 +35,8 @@ def _window_count(shape, r: int) -> np.ndarray:
     return sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
 
 
-def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND):
+def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
+              z7: float = 0.0):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``."""
@@ -45,16 +46,17 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
         m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
     c = color.astype(np.float64)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
-                               mode)[:2]
+                               mode, z7)[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
-                        mode: int = MODE_BLEND):
+                        mode: int = MODE_BLEND, z7: float = 0.0):
     """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
     ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
     half estimates, as the guided refinement's blend toward its guide takes) and the
     method's images; float64. ``w``: the blend's weight of the method (None unless
-    ``mode`` is the blend)."""
+    ``mode`` is the blend). ``z7 > 0``: the 7x7 bias mean must stand ``z7`` standard errors
+    above zero (the guided refinement's chain), as the 3x3 mean must stand 2."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     s = ha + hb
     box = (ha * a + hb * b) / s
@@ -72,7 +74,11 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     mu3 = _window_mean(e, 1)
     n3 = _window_count(e.shape, 1)
     se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
-    b2 = np.maximum(0.0, np.maximum(_window_mean(e, 3), mu3 - 2.0 * se3))
+    mu7 = _window_mean(e, 3)
+    if z7 > 0:
+        n7 = _window_count(e.shape, 3)
+        mu7 = mu7 - z7 * np.sqrt(np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7)
+    b2 = np.maximum(0.0, np.maximum(mu7, mu3 - 2.0 * se3))
     err_m = b2 + _window_mean(vm, 1)
     if mode == MODE_METHOD:
         return m, np.minimum(err_m, _FLT_MAX), None

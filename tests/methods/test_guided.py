@@ -12,6 +12,8 @@ from layered_frames import frame
 from clrecon.api import make_pipeline, run
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import guided as gd
+from clrecon.methods import safeguard as sg
+from clrecon.methods.safeguard import reference_of_halves
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_samples
@@ -55,10 +57,16 @@ def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend
     image = np.empty(shape, np.float32)
     cl.enqueue_copy(q, image, out)
     assert np.isfinite(image).all()
+    ha = buf.spp // 2
     if not safeguard:
-        ha = buf.spp // 2
         mean = (ha * ra + (buf.spp - ha) * rb) / buf.spp
         assert_close(image, mean, rtol=1e-4, atol=tol, what="image = refined halves' mean")
+    else:  # the safeguard's blend toward box, its 7x7 bias mean tested at 2 standard errors
+        c = buf.color.astype(np.float64)
+        want, _, _ = reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha,
+                                         buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
+                                         sg.GUIDED_Z7)
+        assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()
     assert d["guided"] == 2 and d["safeguard"] is safeguard
     assert d["guide_blend"] is guide_blend
