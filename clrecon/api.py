@@ -57,24 +57,22 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     estimate_error = check_bool("estimate_error", estimate_error)
     guided = check_radius(guided)
     guide_blend = check_bool("guide_blend", guide_blend)
-    if guided and method == "box":
-        raise ValueError("guided: box has no image of its own to guide the regression; "
-                         "pick a method (sweep, layered or splat)")
-    if guided and info.spp < 2:
-        raise ValueError(f"guided: needs >= 2 samples per pixel (two independent halves), "
-                         f"the frame has {info.spp}")
     inner = make_method(method, context, info, **knobs)
     if safeguard is None:
         safeguard = method != "box" and info.spp >= 2
-    if safeguard and method == "box":
-        raise ValueError("safeguard: box is the unbiased estimate the safeguard blends "
-                         "toward; it has nothing to safeguard")
-    if safeguard and info.spp < 2:
-        raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent halves), "
-                         f"the frame has {info.spp}; pass safeguard=False")
-    if estimate_error and info.spp < 2:
-        raise ValueError(f"estimate_error: needs >= 2 samples per pixel (two independent "
-                         f"halves), the frame has {info.spp}")
+    for name, on, other in (("guided", guided, "box has no image of its own to guide the "
+                             "regression; pick a method (sweep, layered or splat)"),
+                            ("safeguard", safeguard, "box is the unbiased estimate the "
+                             "safeguard blends toward; it has nothing to safeguard")):
+        if on and method == "box":
+            raise ValueError(f"{name}: {other}")
+    # each needs two independent halves of every pixel's samples
+    for name, on, hint in (("guided", guided, ""), ("safeguard", safeguard,
+                                                    "; pass safeguard=False"),
+                           ("estimate_error", estimate_error, "")):
+        if on and info.spp < 2:
+            raise ValueError(f"{name}: needs >= 2 samples per pixel (two independent halves), "
+                             f"the frame has {info.spp}{hint}")
     # a frame without blur is planned as box, with nothing to blend: the method's own
     # pipeline, unless it may grow into a blurred frame (the wrapper re-plans both)
     if estimate_error or guided or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
