@@ -138,8 +138,20 @@ def _method(buf, method: str, device):
         return runner.image(), device_ms, seconds * 1e3, None
     from clrecon.api import run
 
-    res, seconds = timed(lambda: run(buf, method, device), warmup=True)
+    name, knobs = _spec(method)
+    res, seconds = timed(lambda: run(buf, name, device, **knobs), warmup=True)
     return res.image, res.device_ms, seconds * 1e3, res.device
+
+
+#: the demo's spelling of the guided refinement: ``METHOD+guided`` (clrecon.methods.guided)
+GUIDED_SUFFIX, GUIDED_RADIUS = "+guided", 2
+
+
+def _spec(entry: str) -> tuple[str, dict]:
+    """A ``--methods`` entry as (method, knobs)."""
+    if entry.endswith(GUIDED_SUFFIX):
+        return entry[:-len(GUIDED_SUFFIX)], {"guided": GUIDED_RADIUS}
+    return entry, {}
 
 
 def _row(args, buf, ref, method: str, out: Path):
@@ -163,7 +175,11 @@ def cmd_demo(args) -> int:
     methods = [m for m in args.methods.split(",") if m]
     for method in methods:
         if method != "oidn":
-            check_knob_names(method, {}, "--methods: ")
+            name, knobs = _spec(method)
+            check_knob_names(name, knobs, "--methods: ")
+            if knobs and name == "box":
+                raise ValueError(f"--methods: {method}: box has no image of its own to guide "
+                                 f"the regression")
     if not methods:
         raise ValueError(f"--methods: no method in {args.methods!r}")
     check_output_dir("-o", args.output)
@@ -194,7 +210,7 @@ def cmd_demo(args) -> int:
         device = label or device
         stage_log(f"{method}: {seconds:.1f} s (program build, warm-up, timed run, quality, "
                   f"images)")
-        print(f"{method:8s} device {device_ms:8.2f} ms (total {total_ms:7.1f} ms)  "
+        print(f"{method:12s} device {device_ms:8.2f} ms (total {total_ms:7.1f} ms)  "
               f"PSNR {q['psnr']:.2f} dB  SSIM {q['ssim']:.4f}  FLIP {q['flip']:.4f}")
     _print_notes(methods, ref_spp, device, out)
     return 0
@@ -208,5 +224,11 @@ def _print_notes(methods, ref_spp: int, device, out: Path) -> None:
           "methods differently.")
     if "oidn" in methods:
         print(OIDN_NOTE)
+    for m in methods:
+        if m.endswith(GUIDED_SUFFIX):
+            print(f"{m}: {m[:-len(GUIDED_SUFFIX)]} with the guided refinement (guided="
+                  f"{GUIDED_RADIUS}: each half's box image regressed window by window on the "
+                  f"method's image of that half, then the safeguard; README: The guided "
+                  f"refinement)")
     print(f"device: {device}")
     print(f"images in {out}/")

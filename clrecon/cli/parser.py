@@ -117,8 +117,9 @@ def _demo(sub) -> None:
     sp.add_argument("--spp", type=int, default=8, help="samples per pixel of the input")
     sp.add_argument("--ref-spp", type=int, default=None, help="default: the scene's")
     sp.add_argument("--seed", type=int, default=0, help="of the input (reference: seed + 1)")
-    sp.add_argument("--methods", default="box,oidn,sweep,layered,splat",
-                    help="comma-separated methods to run (oidn: box + Open Image Denoise)")
+    sp.add_argument("--methods", default="box,oidn,sweep,layered,splat,splat+guided",
+                    help="comma-separated methods to run (oidn: box + Open Image Denoise; "
+                    "METHOD+guided: the method with the guided refinement, guided=2)")
     _output_folder(sp, "out", "folder of the images")
     device_arg(sp)
     sp.set_defaults(fn=cmd_demo)

@@ -277,3 +277,7 @@ def test_demo_bad_method_fails_before_rendering(tmp_path, monkeypatch, capsys):
     line = _one_line(capsys)
     assert "nosuch" in line and "--methods" in line, line
     assert not (tmp_path / "d").exists()
+    assert main(["demo", "--methods", "box,box+guided", "-o", str(tmp_path / "d")]) == 2
+    line = _one_line(capsys)
+    assert "box+guided" in line and "guide" in line, line
+    assert not (tmp_path / "d").exists()
