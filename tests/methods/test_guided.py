@@ -111,3 +111,26 @@ def test_refinement_beats_its_guide_on_a_builtin_scene(device, method, knobs):
                       **knobs).image, ref)
     assert guided > paper + 1.0, (box, paper, guided)
     assert guided > box + 3.0, (box, paper, guided)
+
+
+def test_frames_it_was_not_built_for(device, rng):
+    """Reused frame after frame: a frame of another shape is refused with the bound named;
+    a pipeline made with grow=True re-plans, refinement included, and gives the image a
+    pipeline made for that frame gives."""
+    a = frame(rng, h=16, w=18, s=4)
+    b = frame(rng, h=20, w=23, s=6)
+    ctx, q = device.context, device.queue
+    pipe = make_pipeline("splat", ctx, DeviceSamples.wrap(ctx, a, a.arrays().keys())
+                         .inspect(q), guided=2)
+    dsb = DeviceSamples.wrap(ctx, b, b.arrays().keys())
+    out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, b.height * b.width * 12)
+    with pytest.raises(ValueError, match="width"):
+        pipe(q, dsb, out)
+    grown = make_pipeline("splat", ctx, DeviceSamples.wrap(ctx, a, a.arrays().keys())
+                          .inspect(q), guided=2, grow=True)
+    grown(q, dsb, out)
+    img = np.empty((b.height, b.width, 3), np.float32)
+    cl.enqueue_copy(q, img, out)
+    assert grown.describe()["guided"] == 2
+    want = run(b, method="splat", device=device, guided=2).image
+    assert_close(img, want, rtol=1e-5, atol=1e-6, what="grown image")
