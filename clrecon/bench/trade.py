@@ -105,7 +105,8 @@ def trade_variants(methods: Sequence[str] | None = None,
         if unknown:
             raise ValueError(f"settings: unknown {unknown}; the methods' settings are "
                              f"{sorted(known)}")
-        every = [v for v in every if v[0] == "box" or v[0] in set(settings)]
+        wanted = set(settings)
+        every = [v for v in every if v[0] == "box" or v[0] in wanted]
     return _check_variants(every)
 
 

@@ -50,6 +50,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import cpu_context, get_kernel
+from clrecon.methods.safeguard_passes import halves
 from clrecon.methods.safeguard_reference import MODE_BLEND, reference_of_halves
 
 #: floats a window's coefficients take: A (3x3, row = guide channel), then beta (3)
@@ -131,11 +132,10 @@ def reference(color: np.ndarray, ga: np.ndarray, gb: np.ndarray, r: int):
     """(qA, qB): both halves' refined images from the samples' colours (H, W, S, 3) and the
     method's images of the halves (samples ``0..S//2-1`` and the rest); float64."""
     c = np.asarray(color, np.float64)
-    s = c.shape[2]
-    ha = s // 2
+    ha, hb = halves(c.shape[2])
     ya, yb = c[:, :, :ha].mean(2), c[:, :, ha:].mean(2)
     d2 = ((ya - yb) ** 2).mean(-1)
-    return (refine(ya, ga, d2, (s - ha) / s, r), refine(yb, gb, d2, ha / s, r))
+    return (refine(ya, ga, d2, hb / (ha + hb), r), refine(yb, gb, d2, ha / (ha + hb), r))
 
 
 # -- the passes ------------------------------------------------------------------------------
@@ -168,8 +168,7 @@ class GuidedPasses:
 
     def __call__(self, queue, color, ga, gb, planes, coef, qa, qb, w, h, spp, wait_for=None):
         """[("guided_means", ev), ("guided_fit", ev), ("guided_apply", ev)]."""
-        ha = spp // 2
-        hb = spp - ha
+        ha, hb = halves(spp)
         ps = np.int32(plane_pitch(w, h))
         self.means.set_args(color, ga, gb, planes, np.int32(w), np.int32(h), np.int32(spp),
                             np.int32(ha), ps)
@@ -192,8 +191,6 @@ def chain_reference(color: np.ndarray, ga: np.ndarray, gb: np.ndarray, r: int,
     qa, qb = reference(color, ga, gb, r)
     if not guide_blend:
         return qa, qb
-    s = color.shape[2]
-    ha = s // 2
-    _, _, w = reference_of_halves(qa, qb, ha, s - ha, None, ga, gb, MODE_BLEND)
+    _, _, w = reference_of_halves(qa, qb, *halves(color.shape[2]), None, ga, gb, MODE_BLEND)
     w = w[..., None]
     return qa + w * (ga - qa), qb + w * (gb - qb)
