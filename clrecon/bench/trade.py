@@ -103,8 +103,7 @@ def trade_variants(methods: Sequence[str] | None = None,
         known = {lab for lab, _, _ in every}
         unknown = [s for s in settings if s not in known]
         if unknown:
-            raise ValueError(f"settings: unknown {unknown}; the methods' settings are "
-                             f"{sorted(known)}")
+            raise ValueError(f"settings: unknown {unknown}; known: {sorted(known)}")
         wanted = set(settings)
         every = [v for v in every if v[0] == "box" or v[0] in wanted]
     return _check_variants(every)
