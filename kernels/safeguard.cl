@@ -8,7 +8,12 @@
  *                    d2 = |m - box|^2, vb = k |boxA - boxB|^2, vm = k |mA - mB|^2 with
  *                    k = ha hb / S^2 (the variance of the full-frame estimate from its halves);
  *                    with has_method = 2 it first writes m as the halves' mean
- *   safeguard_rows   the windowed sums' row segments (3 and 7 wide), for the blend
+ *                    (with quarters = 1, also dq: the quarters' squared difference that
+ *                    kernels/safeguard_ratio.cl sets against the halves' over the frame)
+ *   safeguard_rows   the windowed sums' row segments (3 and 7 wide), for the blend, with
+ *                    vb and vm times the frame's factor from safeguard_ratio.cl (<= 1: the
+ *                    halves' overstatement of stratified samples' variances; 1 below
+ *                    16 spp, where it is not measured)
  *   safeguard_blend  windowed means (3x3 and 7x7, over the pixels inside the image), the bias
  *                    estimate b2 = max(0, mean7(e), mean3(e) - 2 se3(e)), e = d2 - vm - vb
  *                    (se3: the standard error of the 3x3 mean), the method's
@@ -19,10 +24,12 @@
  * floats a sample; stats: color (H, W, S, 3), m, ma, mb (H, W, 3) the method's images of the
  * frame (or written: the halves' mean) and of its halves, box (H, W, 3) (with ref_images:
  * the reference's halves are the images ua, ub (H, W, 3) in place of the samples' means:
- * the guided refinement's blend toward its guide), stats: four planes
- * (d2, vb, vm, e) of (H, sp) floats, pixel x at column x + 3, sp >= rp + 6, the columns
- * outside the image 0 and e = SG_PAD_E; rows: eight planes of (H, rp) floats, rp a multiple of
- * SG_VW >= W (rows3 = vb3, vm3, e3, ee3; rows7 = e7, vb7, e3max, e7max; then ee7); blend:
+ * the guided refinement's blend toward its guide), stats: five planes
+ * (d2, vb, vm, e, dq) of (H, sp) floats, pixel x at column x + 3, sp >= rp + 6, the columns
+ * outside the image 0 and e = SG_PAD_E (dq written only with quarters = 1); rows: vscale
+ * (1 float, kernels/safeguard_ratio.cl's scale or 1) and nine
+ * planes of (H, rp) floats, rp a multiple of SG_VW >= W (rows3 = vb3, vm3, e3, ee3;
+ * rows7 = e7, vb7, e3max, e7max; then ee7); blend:
  * out (H, W, 3), error (H, W); z7 > 0: the 7x7 bias mean is tested at z7 standard errors.
  * Vector width: safeguard_rows and safeguard_blend run SG_VW consecutive pixels of a row per
  * work-item as floatN (SG_VW 1, 4, 8 or 16; the host passes 16 for CPUs, 1 otherwise). PoCL
@@ -105,7 +112,7 @@ __kernel void safeguard_stats(__global const float *color, __global float *m,
                               __global float *box, __global float *stats,
                               int width, int height, int spp, int ha, int has_method, int sp,
                               __global const float *ua, __global const float *ub,
-                              int ref_images)
+                              int ref_images, int quarters)
 {
     /* one work-item per column of the planes: the padding's too */
     const int col = get_global_id(0), y = get_global_id(1), x = col - 3;
@@ -117,20 +124,38 @@ __kernel void safeguard_stats(__global const float *color, __global float *m,
         stats[q + plane] = 0.0f;
         stats[q + 2 * plane] = 0.0f;
         stats[q + 3 * plane] = SG_PAD_E;
+        if (quarters)
+            stats[q + 4 * plane] = 0.0f;
         return;
     }
     const int p = pixel_index(x, y, width);
     const int hb = spp - ha;
     float3 sa = (float3)(0.0f), sb = (float3)(0.0f);
+    /* with quarters: the first quarter of each half (its first half of samples) apart */
+    float3 q0 = (float3)(0.0f), q2 = (float3)(0.0f);
+    const int n0 = ha / 2, n2 = (spp - ha) / 2;
     if (ref_images) {  /* the reference's halves are images (ua, ub), not the samples' means */
         sa = (float)ha * load3(ua, p);
         sb = (float)hb * load3(ub, p);
     } else {
         const __global float *c = color + (size_t)p * spp * 3;
-        for (int i = 0; i < ha; ++i)
-            sa += vload3(i, c);
-        for (int i = ha; i < spp; ++i)
-            sb += vload3(i, c);
+        if (quarters) {  /* one read of the colours, the quarters' sums on the way */
+            for (int i = 0; i < n0; ++i)
+                q0 += vload3(i, c);
+            for (int i = n0; i < ha; ++i)
+                sa += vload3(i, c);
+            for (int i = ha; i < ha + n2; ++i)
+                q2 += vload3(i, c);
+            for (int i = ha + n2; i < spp; ++i)
+                sb += vload3(i, c);
+            sa += q0;
+            sb += q2;
+        } else {
+            for (int i = 0; i < ha; ++i)
+                sa += vload3(i, c);
+            for (int i = ha; i < spp; ++i)
+                sb += vload3(i, c);
+        }
     }
     const float3 full = (sa + sb) / (float)spp;
     const float3 a = sa / (float)ha, b = sb / (float)hb;
@@ -162,6 +187,17 @@ __kernel void safeguard_stats(__global const float *color, __global float *m,
     stats[q + plane] = vb;
     stats[q + 2 * plane] = vm;
     stats[q + 3 * plane] = (float)e;
+    if (quarters) {  /* each half's two quarters (the first half of its samples and the
+                      * rest): dq, their squared difference per unit of 1/n0 + 1/n1, the
+                      * mean over the two halves (safeguard_ratio_rows compares it with
+                      * the halves' own, S vb) */
+        const int n1 = ha - n0, n3 = hb - n2;
+        const float3 da = q0 / (float)n0 - (sa - q0) / (float)n1;
+        const float3 db = q2 / (float)n2 - (sb - q2) / (float)n3;
+        const float ka = ((float)n0 * (float)n1) / (float)ha;
+        const float kb = ((float)n2 * (float)n3) / (float)hb;
+        stats[q + 4 * plane] = 0.5f * (ka * lum2(da * sc) + kb * lum2(db * sc));
+    }
 }
 
 /* 2^n for n <= 0, flushed to 0 below float32's normal range (n < -126): a pixel that much
@@ -179,8 +215,10 @@ __attribute__((always_inline)) inline vfloat pow2_nonpos(const vint n)
  * order of the additions). SG_VW pixels x0 .. x0 + SG_VW - 1 a work-item (x0 a multiple of
  * SG_VW; lanes past the image's width compute from the padding and are not stored). */
 __kernel void safeguard_rows(__global const float *stats, __global float *rows, int width,
-                             int height, int sp, int rp)
+                             int height, int sp, int rp, __global const float *vscale)
 {
+    /* the factor of the halves' variances (safeguard_ratio; 1: independent samples) */
+    const float s = vscale[0];
     const int x0 = get_global_id(0) * SG_VW, y = get_global_id(1);
     if (x0 >= width || y >= height)
         return;
@@ -200,7 +238,7 @@ __kernel void safeguard_rows(__global const float *stats, __global float *rows, 
     #pragma unroll
     for (int k = -3; k <= 3; ++k) {
         const vint ex = CONVERT_INT(VLOAD(ep + k));
-        const vfloat sd = VLOAD(d2 + k), svb = VLOAD(vbp + k), svm = VLOAD(vmp + k);
+        const vfloat sd = VLOAD(d2 + k), svb = s * VLOAD(vbp + k), svm = s * VLOAD(vmp + k);
         /* to the segment's units */
         const vfloat f7 = pow2_nonpos(2 * (ex - e7max));
         const vfloat e = sd - svm - svb;

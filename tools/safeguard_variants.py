@@ -13,7 +13,8 @@ the device's own image to 0.02 dB). A variant changes one thing:
   compares with a quarter's tells how the renderer's samples converge, where independent
   halves assume ``1/spp`` (needs >= 4 spp; stratified samples converge faster);
   ``strat frame``: the same with one ratio for the frame, ``mean(v_half) / mean(v_quarter)``
-  over every pixel;
+  over every pixel (shipped from 16 spp since 2026-12-03, as
+  :func:`clrecon.methods.safeguard_reference.variance_scale`; here from 4 spp);
 * ``se7 1`` / ``se7 2``: the 7x7 mean of ``e`` only where it stands 1 / 2 standard errors
   above zero, as the 3x3 one does;
 * ``shrink7``: the 7x7 mean shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)``.
@@ -35,7 +36,13 @@ from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_reference import _lum2, _window_count, _window_mean, halves
+from clrecon.methods.safeguard_reference import (
+    _lum2,
+    _window_count,
+    _window_mean,
+    halves,
+    variance_scale,
+)
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_reference, render_samples
@@ -75,6 +82,9 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np
                     else _window_mean(v_half, 3) / np.maximum(_window_mean(v_quarter, 3), tiny),
                     0.0, 0.5)
         vb, vm = vb * 2 * r, vm * 2 * r
+    else:  # the shipped factor (1 below 16 spp; from 16, ``strat frame``'s own)
+        vs = variance_scale(color)
+        vb, vm = vb * vs, vm * vs
     e = _lum2(m - box) - vm - vb
     mu3, se3 = _se(e, 1)
     mu7, se7 = _se(e, 3)

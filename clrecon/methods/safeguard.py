@@ -34,6 +34,16 @@ radiance averaged over RGB:
   samples show the spread (without the 7x7 term the blend lost 2 dB to the method on
   ``bokeh`` at 8 spp).
 
+The sampler's convergence. Halves measure the variance of a half's mean; ``k`` turns it
+into the frame's as if the samples were independent (variance ``1/n``). Stratified samples
+converge faster, so ``vb`` and ``vm`` overstate the frame's variances, and the blend keeps a
+biased method where box is already the better. From 16 spp (each half's two quarters hold
+>= 4 samples) the frame measures it: ``s = sum S vb / sum dq`` over its pixels, ``dq`` the
+quarters' squared difference per unit of their own ``1/n0 + 1/n1`` (both have the samples'
+variance as expectation for independent samples: ``s = 1``), clamped to [0, 1], scales
+``vb`` and ``vm`` everywhere (``safeguard_ratio``). It assumes the quarter-to-half
+convergence holds from half to frame; below 16 spp the quarters are too few to say.
+
 As samples grow, ``vb`` falls like box's error while a method's bias does not, so ``w``
 goes to 0 and the image to box's: the blend is consistent. Where the method is unbiased
 (blurred regions, which are most of its gain) ``w`` stays near 1.
@@ -76,7 +86,7 @@ from clrecon.core.pipeline import DeviceSamples, Pipeline, make_method
 from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
 from clrecon.methods.guided import GuidedPasses, check_radius
-from clrecon.methods.safeguard_passes import SafeguardPasses, halves
+from clrecon.methods.safeguard_passes import SafeguardPasses, halves, measures_convergence
 
 # the NumPy reference and the blend kernel's modes live in their own module; re-exported
 # here, where the safeguard is (``X as X``: an explicit re-export)
@@ -211,8 +221,15 @@ class Safeguarded(Pipeline):
         steps.append(Step("safeguard_stats", ("color",) + images,
                           ("box", "stats") + (("m",) if self.halves_mean else ()),
                           self._stats_step()))
-        steps.append(Step("safeguard_blend", ("stats", "box") + (() if is_box else ("m",)),
-                          ("out", "error"), self._blend_step()))
+        # from 16 spp the halves' variances are scaled by the sampler's measured convergence
+        self.scaled = measures_convergence(info.spp)
+        if self.scaled:
+            temps |= {"sg_partial": self.passes.ratio_bytes(info.height), "sg_scale": 4}
+            steps.append(Step("safeguard_ratio", ("stats",), ("sg_scale",),
+                              self._ratio_step()))
+        steps.append(Step("safeguard_blend", ("stats", "box") + (() if is_box else ("m",))
+                          + (("sg_scale",) if self.scaled else ()), ("out", "error"),
+                          self._blend_step()))
         bounds = tuple(self.full.plan.bounds) + shape_bounds(
             info, "the halves' pipelines are planned for spp // 2 and spp - spp // 2")
         suffix = ("guided+" if self.guided else "") + (
@@ -322,8 +339,17 @@ class Safeguarded(Pipeline):
             m, ma, mb = (b["m"], b[ia], b[ib]) if has else (b["box"],) * 3
             ev = self.passes.run_stats(queue, b["color"], m, ma, mb, b["box"], b["stats"],
                                        f.width, f.height, f.spp,
-                                       2 if self.halves_mean else int(has), wait_for)
+                                       2 if self.halves_mean else int(has), wait_for,
+                                       quarters=self.scaled)
             return [("safeguard_stats", ev)]
+        return run
+
+    def _ratio_step(self):
+        def run(queue, f, wait_for):
+            b = f.buffers
+            return [("safeguard_ratio", ev) for ev in self.passes.run_ratio(
+                queue, b["stats"], b["sg_partial"], b["sg_scale"], f.width, f.height, f.spp,
+                wait_for)]
         return run
 
     def _blend_step(self):
@@ -332,7 +358,8 @@ class Safeguarded(Pipeline):
             m = b["m"] if self.mode != MODE_BOX else b["box"]
             return self.passes.run_blend(queue, b["stats"], b["rows"], b["box"], m,
                                          b["out"], b["error"], f.width, f.height, self.mode, 1,
-                                         wait_for, GUIDED_Z7 if self.guided else 0.0)
+                                         wait_for, GUIDED_Z7 if self.guided else 0.0,
+                                         b["sg_scale"] if self.scaled else None)
         return run
 
     # -- protocol ----------------------------------------------------------------------------
@@ -349,6 +376,8 @@ class Safeguarded(Pipeline):
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True
+        if self.scaled:
+            d["safeguard_convergence"] = "measured (the halves' variances scaled by it)"
         if self.halves_mean:
             d["safeguard_image"] = "the mean of the halves' images"
         if self.joint:

@@ -1,5 +1,5 @@
 """The safeguard's kernels (``kernels/safeguard.cl``) and their buffers' layout: the pixel
-statistics as four planes with three padding columns on each side, the windowed sums' row
+statistics as five planes with three padding columns on each side, the windowed sums' row
 segments as eight planes, and ``SG_VW`` pixels of a row a work-item in the window passes.
 
 Why planes and vectors: PoCL 3.1 vectorises a kernel across work-items only where its body
@@ -17,8 +17,11 @@ import pyopencl as cl
 
 from clrecon.core.device import cpu_context, get_kernel
 
-#: the statistics' planes: d2, vb, vm and the exponent
-STAT_PLANES = 4
+#: the statistics' planes: d2, vb, vm, the exponent and the quarters' dq
+STAT_PLANES = 5
+#: the fewest samples a quarter (half a half) holds for the sampler's convergence to be
+#: measured (:func:`measures_convergence`): from 16 spp
+MIN_QUARTER = 4
 #: the row segments' planes: vb3, vm3, e3, ee3 (3 wide), e7, vb7, e3max, e7max, ee7 (7 wide)
 ROW_PLANES = 9
 #: padding columns on each side of the statistics' planes (the 7-wide window's reach)
@@ -30,6 +33,13 @@ def halves(spp: int) -> tuple[int, int]:
     return spp // 2, spp - spp // 2
 
 
+def measures_convergence(spp: int) -> bool:
+    """Whether a frame of ``spp`` samples a pixel has its halves' variances scaled by the
+    sampler's measured convergence (``safeguard_ratio``): each half's quarters hold at least
+    :data:`MIN_QUARTER` samples."""
+    return halves(int(spp))[0] // 2 >= MIN_QUARTER
+
+
 def vector_width(context: cl.Context) -> int:
     """Pixels a work-item of the window passes: 16 on a CPU (PoCL and Intel's runtime vectorise
     the explicit ``float16``), 1 elsewhere."""
@@ -37,7 +47,8 @@ def vector_width(context: cl.Context) -> int:
 
 
 class SafeguardPasses:
-    """The four kernels of ``kernels/safeguard.cl``, built for this context's vector width."""
+    """The kernels of ``kernels/safeguard.cl``, built for this context's vector width, and
+    ``kernels/safeguard_ratio.cl``'s two."""
 
     def __init__(self, context: cl.Context, vw: int | None = None):
         """``vw``: the vector width (1, 4, 8 or 16; default :func:`vector_width`)."""
@@ -49,6 +60,11 @@ class SafeguardPasses:
         self.stats = get_kernel(context, "safeguard", "safeguard_stats", defines)
         self.rows = get_kernel(context, "safeguard", "safeguard_rows", defines)
         self.blend = get_kernel(context, "safeguard", "safeguard_blend", defines)
+        self.ratio_rows = get_kernel(context, "safeguard_ratio", "safeguard_ratio_rows")
+        self.ratio = get_kernel(context, "safeguard_ratio", "safeguard_ratio")
+        #: the variances' factor where it is not measured: 1 (independent samples)
+        self.one = cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                             hostbuf=np.ones(1, np.float32))
 
     # -- layout ------------------------------------------------------------------------------
     def rows_pitch(self, width: int) -> int:
@@ -66,6 +82,11 @@ class SafeguardPasses:
     def rows_bytes(self, width: int, height: int) -> int:
         return ROW_PLANES * self.rows_pitch(width) * int(height) * 4
 
+    @staticmethod
+    def ratio_bytes(height: int) -> int:
+        """The ratio's row sums: three floats a row."""
+        return 3 * int(height) * 4
+
     # -- launches ----------------------------------------------------------------------------
     def split_field(self, queue, src, dst_a, dst_b, pixels, spp, width, wait_for=None):
         ha, _ = halves(spp)
@@ -75,32 +96,51 @@ class SafeguardPasses:
                                           wait_for=wait_for)
 
     def run_stats(self, queue, color, m, ma, mb, box, stats, w, h, spp, has_method,
-                  wait_for=None, ua=None, ub=None):
+                  wait_for=None, ua=None, ub=None, quarters: bool = False):
         """has_method: 0 box alone, 1 with the method's image m, 2 m written as the halves'
         mean. ``ua``, ``ub``: the reference's halves as images (box is then their mean)
-        instead of the samples' means. One work-item per column of the planes (the
-        padding's too)."""
+        instead of the samples' means. ``quarters``: also the quarters' plane (dq) that
+        :meth:`run_ratio` reads (the samples' halves only, ``spp`` measuring convergence).
+        One work-item per column of the planes (the padding's too)."""
         ha, _ = halves(spp)
         sp = self.stats_pitch(w)
         ref = ua is not None
+        if quarters and (ref or not measures_convergence(spp)):
+            raise ValueError(f"safeguard: the quarters need the samples and >= "
+                             f"{4 * MIN_QUARTER} spp (the frame has {spp})")
         self.stats.set_args(color, m, ma, mb, box, stats, np.int32(w), np.int32(h),
                             np.int32(spp), np.int32(ha), np.int32(has_method), np.int32(sp),
-                            ua if ref else color, ub if ref else color, np.int32(ref))
+                            ua if ref else color, ub if ref else color, np.int32(ref),
+                            np.int32(bool(quarters)))
         return cl.enqueue_nd_range_kernel(queue, self.stats, (sp, h), None, wait_for=wait_for)
 
+    def run_ratio(self, queue, stats, partial, scale, w, h, spp, wait_for=None):
+        """The sampler's convergence from statistics written with ``quarters``: ``scale``
+        (one float) = the frame's halves' squared difference over its quarters', per unit
+        of their independent-sample variances, clamped to [0, 1]. Two launches, their
+        events in order."""
+        self.ratio_rows.set_args(stats, partial, np.int32(w), np.int32(h),
+                                 np.int32(self.stats_pitch(w)), np.int32(spp))
+        ev = cl.enqueue_nd_range_kernel(queue, self.ratio_rows, (int(h),), None,
+                                        wait_for=wait_for)
+        self.ratio.set_args(partial, np.int32(h), scale)
+        return [ev, cl.enqueue_nd_range_kernel(queue, self.ratio, (1,), None, wait_for=[ev])]
+
     def run_blend(self, queue, stats, rows, box, m, out, error, w, h, mode, write_error,
-                  wait_for=None, z7: float = 0.0):
+                  wait_for=None, z7: float = 0.0, vscale=None):
         """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
         ("safeguard_blend", ev)]. ``z7 > 0``: the 7x7 bias mean is tested at ``z7``
-        standard errors, as the 3x3 one at 2."""
-        ev = self.run_rows(queue, stats, rows, w, h, wait_for)
+        standard errors, as the 3x3 one at 2. ``vscale``: the halves' variances' factor
+        (:meth:`run_ratio`'s buffer; None: 1)."""
+        ev = self.run_rows(queue, stats, rows, w, h, wait_for, vscale)
         return [("safeguard_rows", ev), ("safeguard_blend", self.run_blend_only(
             queue, rows, box, m, out, error, w, h, mode, write_error, [ev], z7))]
 
-    def run_rows(self, queue, stats, rows, w, h, wait_for=None):
-        """The windowed sums' row segments alone."""
+    def run_rows(self, queue, stats, rows, w, h, wait_for=None, vscale=None):
+        """The windowed sums' row segments alone (``vscale`` as for :meth:`run_blend`)."""
         sp, rp = self.stats_pitch(w), self.rows_pitch(w)
-        self.rows.set_args(stats, rows, np.int32(w), np.int32(h), np.int32(sp), np.int32(rp))
+        self.rows.set_args(stats, rows, np.int32(w), np.int32(h), np.int32(sp), np.int32(rp),
+                           self.one if vscale is None else vscale)
         return cl.enqueue_nd_range_kernel(queue, self.rows, (rp // self.vw, h), None,
                                           wait_for=wait_for)
 

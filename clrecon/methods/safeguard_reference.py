@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clrecon.methods.safeguard_passes import halves
+from clrecon.methods.safeguard_passes import halves, measures_convergence
 
 _FLT_MAX = float(np.finfo(np.float32).max)  # the error image saturates there
 
@@ -35,33 +35,57 @@ def _window_count(shape, r: int) -> np.ndarray:
     return sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
 
 
+def variance_scale(color: np.ndarray) -> float:
+    """The factor of the halves' variances, from the samples' colours (H, W, S, 3): 1 below
+    16 spp (:func:`~clrecon.methods.safeguard_passes.measures_convergence`); else the
+    frame's sum of the halves' squared differences over its quarters', each per unit of its
+    independent-sample variance (``1/n0 + 1/n1``), clamped to [0, 1], or 1 where the
+    quarters show no spread (``safeguard_ratio``)."""
+    s = color.shape[2]
+    if not measures_convergence(s):
+        return 1.0
+    c = np.asarray(color, np.float64)
+    ha, hb = halves(s)
+    dh = _lum2(c[:, :, :ha].mean(2) - c[:, :, ha:].mean(2)) / (1 / ha + 1 / hb)
+    dq = 0.0
+    for lo, n in ((0, ha), (ha, hb)):
+        n0 = n // 2
+        d = c[:, :, lo:lo + n0].mean(2) - c[:, :, lo + n0:lo + n].mean(2)
+        dq = dq + 0.5 * _lum2(d) / (1 / n0 + 1 / (n - n0))
+    sq = float(np.sum(dq))
+    r = float(np.sum(dh)) / sq if sq > 0 else np.inf
+    return float(np.clip(r, 0.0, 1.0)) if np.isfinite(r) else 1.0
+
+
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
               z7: float = 0.0):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
-    the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``."""
+    the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
+    The halves' variances are scaled by :func:`variance_scale`."""
     s = color.shape[2]
     ha, hb = halves(s)
     if m is None and ma is not None:
         m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
     c = color.astype(np.float64)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
-                               mode, z7)[:2]
+                               mode, z7, variance_scale(c))[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
-                        mode: int = MODE_BLEND, z7: float = 0.0):
+                        mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0):
     """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
     ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
     half estimates, as the guided refinement's blend toward its guide takes) and the
     method's images; float64. ``w``: the blend's weight of the method (None unless
     ``mode`` is the blend). ``z7 > 0``: the 7x7 bias mean must stand ``z7`` standard errors
-    above zero (the guided refinement's chain), as the 3x3 mean must stand 2."""
+    above zero (the guided refinement's chain), as the 3x3 mean must stand 2. ``vscale``:
+    the factor of the halves' variances (:func:`variance_scale`; 1: independent samples)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     s = ha + hb
     box = (ha * a + hb * b) / s
     k = ha * hb / (s * s)
-    vb = k * _lum2(a - b)
+    vb = vscale * k * _lum2(a - b)
     vb3 = _window_mean(vb, 1)
     if mode == MODE_BOX:
         return box, np.minimum(vb3, _FLT_MAX), None
@@ -69,7 +93,7 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
         m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
     m = m.astype(np.float64)
     d2 = _lum2(m - box)
-    vm = k * _lum2(ma.astype(np.float64) - mb)
+    vm = vscale * k * _lum2(ma.astype(np.float64) - mb)
     e = d2 - vm - vb
     mu3 = _window_mean(e, 1)
     n3 = _window_count(e.shape, 1)

@@ -33,7 +33,7 @@ def _halves(rng, h=11, w=13, s=8):
     return color, ma, mb
 
 
-@pytest.mark.parametrize("s", [3, 8])
+@pytest.mark.parametrize("s", [3, 8, 16])
 def test_shipped_is_the_safeguards_reference(rng, s):
     color, ma, mb = _halves(rng, s=s)
     want, _ = sg.reference(color, ma=ma, mb=mb)

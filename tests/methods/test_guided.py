@@ -14,6 +14,7 @@ from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import guided as gd
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard import reference_of_halves
+from clrecon.methods.safeguard_reference import variance_scale
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_samples
@@ -28,11 +29,12 @@ def _read(pipe, queue, name, shape):
 @pytest.mark.parametrize("method", ["layered", "sweep", "splat"])
 @pytest.mark.parametrize("safeguard", [False, True])
 @pytest.mark.parametrize("guide_blend", [False, True])
-def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend):
+@pytest.mark.parametrize("spp", [5, 16])
+def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend, spp):
     """In the pipeline the refined halves are the reference's refinement of the method's own
     halves' images (then blended toward them: guide_blend); without the safeguard the image
-    is the halves' mean."""
-    buf = frame(rng, h=24, w=26, s=5)
+    is the halves' mean (from 16 spp the safeguard's variances scaled by the quarters)."""
+    buf = frame(rng, h=24, w=26, s=spp)
     ctx, q = device.context, device.queue
     ds = DeviceSamples.wrap(ctx, buf, buf.arrays().keys())
     pipe = make_pipeline(method, ctx, ds.inspect(q), guided=2, safeguard=safeguard,
@@ -65,7 +67,7 @@ def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend
         c = buf.color.astype(np.float64)
         want, _, _ = reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha,
                                          buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
-                                         sg.GUIDED_Z7)
+                                         sg.GUIDED_Z7, variance_scale(c))
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()
     assert d["guided"] == 2 and d["safeguard"] is safeguard

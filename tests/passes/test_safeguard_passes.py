@@ -10,7 +10,8 @@ import pytest
 from conftest import assert_close
 
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_passes import SafeguardPasses
+from clrecon.methods.safeguard_passes import SafeguardPasses, measures_convergence
+from clrecon.methods.safeguard_reference import variance_scale
 
 
 def _run(device, color, m, ma, mb, mode, vw, z7=0.0):
@@ -32,13 +33,23 @@ def _run(device, color, m, ma, mb, mode, vw, z7=0.0):
     err = cl.Buffer(ctx, mf.READ_WRITE, h * w * 4)
     has = 0 if mode == sg.MODE_BOX else 1
     m_in = bufs["m"] if has else box
+    quarters = measures_convergence(s)
     ev = passes.run_stats(q, bufs["color"], m_in, bufs["ma"], bufs["mb"], box, stats, w, h, s,
-                          has)
+                          has, quarters=quarters)
+    vscale = None
+    if quarters:  # the sampler's convergence, measured (from 16 spp)
+        vscale = up(np.full(1, np.nan))
+        partial = up(np.full(passes.ratio_bytes(h) // 4, np.nan))
+        ev = passes.run_ratio(q, stats, partial, vscale, w, h, s, [ev])[-1]
     passes.run_blend(q, stats, rows, box, m_in, out, err, w, h, mode, 1, [ev],
-                     z7)[-1][1].wait()
+                     z7, vscale)[-1][1].wait()
     img, e = np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32)
     cl.enqueue_copy(q, img, out)
     cl.enqueue_copy(q, e, err)
+    if quarters:
+        got = np.empty(1, np.float32)
+        cl.enqueue_copy(q, got, vscale)
+        return img, e, float(got[0])
     return img, e
 
 
@@ -79,3 +90,73 @@ def test_kernels_match_reference(device, vw, w, mode, scale, z7):
 def test_vector_width_is_checked(device):
     with pytest.raises(ValueError, match="vector width 3"):
         SafeguardPasses(device.context, 3)
+
+
+def _stratified_colours(rng, h, w, s, iid):
+    """(h, w, s, 3) colours of a step edge at a random place in each pixel, sampled at a
+    Kronecker sequence with a random shift per pixel (stratified: any prefix is spread over
+    the pixel) or at independent uniform points."""
+    i = np.arange(s)
+    shift = rng.random((h, w, 1))
+    x = rng.random((h, w, s)) if iid else (i * 0.6180339887 + shift) % 1.0
+    edge = rng.random((h, w, 1))
+    lo, hi = rng.random((h, w, 1, 3)), 1.0 + 3.0 * rng.random((h, w, 1, 3))
+    return np.where((x < edge)[..., None], lo, hi)
+
+
+SCALED = [(vw, w, mode, s, bright) for vw in (1, 16) for w in (17, 37)
+          for mode in (sg.MODE_BOX, sg.MODE_METHOD, sg.MODE_BLEND) for s in (16, 17)
+          for bright in (1.0,)]
+# a frame 1e-30 or 1e15 bright, and one whose pixels differ by 1e12: the ratio's row and
+# frame sums rescale each pixel's statistics to the largest exponent
+SCALED += [(vw, 37, sg.MODE_BLEND, 16, bright) for vw in (1, 16)
+           for bright in (1e-30, 1e15, "mixed")]
+
+
+@pytest.mark.parametrize("vw,w,mode,s,bright", SCALED)
+def test_scaled_variances_match_reference(device, vw, w, mode, s, bright):
+    """From 16 spp the halves' variances are scaled by the quarters' measured convergence:
+    the kernels' factor, image and error against the reference's."""
+    rng = np.random.default_rng(w + 100 * vw + 7 * mode + s)
+    h = 9
+    color = _stratified_colours(rng, h, w, s, iid=False)
+    color = color * (rng.choice([1.0, 1e12], (h, w, 1, 1)) if bright == "mixed" else bright)
+    sc = float(np.abs(color).max())
+    ma, mb = (color.mean(2) + 0.2 * sc * rng.random((h, w, 3)) for _ in range(2))
+    m = 0.5 * (ma + mb)
+    m[h // 2, :] += 0.8 * sc
+    c32, m32, ma32, mb32 = (a.astype(np.float32) for a in (color, m, ma, mb))
+    img, err, got = _run(device, c32, m32, ma32, mb32, mode, vw)
+    want_scale = variance_scale(c32)
+    assert 0.0 < want_scale < 0.9  # the stratified samples converge faster than 1/n
+    assert got == pytest.approx(want_scale, rel=1e-4)
+    want_img, want_err = sg.reference(c32, m32, ma32, mb32, mode=mode)
+    # the factor changes the estimate: the case can tell a kernel that ignores it
+    half = sg.reference_of_halves(c32[:, :, :s // 2].mean(2), c32[:, :, s // 2:].mean(2),
+                                  s // 2, s - s // 2, m32, ma32, mb32, mode)[1]
+    assert np.abs(half - want_err).max() > 1e-3 * float(np.abs(want_err).max())
+    scale = float(np.abs(want_img).max())
+    assert_close(img, want_img, rtol=1e-4, atol=1e-5 * scale, what=f"image vw={vw} w={w}")
+    assert_close(err, want_err, rtol=1e-3, atol=max(1e-6 * scale ** 2, 6e-45),
+                 what=f"error vw={vw} w={w}")
+
+
+def test_scale_is_one_for_independent_samples(device, rng):
+    """Independent samples: the halves and the quarters estimate the same variance (the
+    factor near 1, noise alone); a frame without spread: exactly 1."""
+    h, w, s = 16, 48, 16
+    color = _stratified_colours(rng, h, w, s, iid=True).astype(np.float32)
+    m = color.mean(2)
+    _, _, got = _run(device, color, m, m, m, sg.MODE_BOX, 16)
+    assert got == pytest.approx(variance_scale(color), rel=1e-4)
+    assert got > 0.85
+    flat = np.full((h, w, s, 3), 0.5, np.float32)
+    _, err, got = _run(device, flat, m, m, m, sg.MODE_BOX, 16)
+    assert got == 1.0 and variance_scale(flat) == 1.0
+    assert not err.any()
+
+
+def test_below_16_spp_nothing_is_measured():
+    assert not measures_convergence(15) and measures_convergence(16)
+    rng = np.random.default_rng(3)
+    assert variance_scale(_stratified_colours(rng, 4, 4, 15, iid=False)) == 1.0
