@@ -16,6 +16,7 @@ Models (parameters in pixels):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
@@ -57,7 +58,11 @@ class NestedGrid:
         return out
 
     def boxes(self) -> np.ndarray:
-        """Every cell's box in grid coordinates, ``(cells, ndim, 2)`` (lo, hi)."""
+        """Every cell's box in grid coordinates, ``(cells, ndim, 2)`` (lo, hi); computed once
+        per grid (every new frame's plan asks for it: ~18 ms a call at 1280x720), read-only."""
+        return _grid_boxes(self)
+
+    def _boxes(self) -> np.ndarray:
         if len(self.n) == 1:
             k = np.arange(self.n[0], dtype=np.float64)
             return np.stack([k, k + 1], -1)[:, None, :]
@@ -96,6 +101,13 @@ class NestedGrid:
             return self.n[0]
         lv = self.levels()
         return lv[-1][0] + lv[-1][1] + lv[-1][2]
+
+
+@cache
+def _grid_boxes(grid: NestedGrid) -> np.ndarray:
+    b = grid._boxes()
+    b.flags.writeable = False
+    return b
 
 
 @dataclass(frozen=True)

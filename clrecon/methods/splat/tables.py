@@ -58,6 +58,7 @@ def _radius(pts: np.ndarray, offs: np.ndarray) -> np.ndarray:
     return np.array([r[a:b].max(initial=0.0) for a, b in zip(offs[:-1], offs[1:])])
 
 
+@cache
 def host_table(name: str, dense: bool, fast_ratio: float,
                max_error: float = float("inf")) -> HostTable:
     """Sparse spreadlets with the fast track, or everything dense.
@@ -67,7 +68,10 @@ def host_table(name: str, dense: bool, fast_ratio: float,
     (``PsfTable.errors``, measured at build time against the unit-energy PSF) exceeds
     ``max_error``: every sample of a frame that lands in such a cell repeats the same error
     pattern, so over a large uniform region (a defocused background) the errors add up to
-    visible low-frequency blotches instead of averaging out."""
+    visible low-frequency blotches instead of averaging out.
+
+    Computed once per set of arguments (each new frame's plan asks; the arrays are shared,
+    read-only)."""
     model = get_model(name)
     if dense:
         dp, dv, do = load_dense(name)
@@ -79,8 +83,10 @@ def host_table(name: str, dense: bool, fast_ratio: float,
     nd, ns = np.diff(t.dense_offsets), np.diff(t.offsets)
     fast = t.has_dense & ((nd <= fast_ratio * ns) | (ns == 0) | (t.errors > max_error))
     rad = np.where(fast, _radius(t.dense_points, t.dense_offsets), _radius(t.points, t.offsets))
+    fast = fast.astype(np.uint8)
+    fast.flags.writeable = rad.flags.writeable = False
     return HostTable(model, t.points, t.values, t.offsets, t.dense_points, t.dense_values,
-                     t.dense_offsets, fast.astype(np.uint8), rad)
+                     t.dense_offsets, fast, rad)
 
 
 class DeviceTable:
