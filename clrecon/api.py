@@ -18,7 +18,7 @@ import pyopencl as cl
 
 from clrecon.core.device import Device, DeviceSpec, get_device
 from clrecon.core.knobs import check_bool
-from clrecon.core.pipeline import METHODS, DeviceSamples, Pipeline, make_method
+from clrecon.core.pipeline import METHODS, DeviceSamples, Pipeline, make_method, reusing
 from clrecon.core.plan import BOX_PLAN
 from clrecon.core.samples import FIELDS, FrameInfo, SampleBuffer
 from clrecon.methods import box, layered, splat, sweep  # noqa: F401  (they register themselves)
@@ -205,11 +205,14 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     t1 = time.perf_counter()
     info = samples.inspect(dev.queue, allow_negative=allow_negative)
     t2 = time.perf_counter()
+    spare = ()
     if sess is not None and sess.pipe.info == info:
         pipe, plan_ms = sess.pipe, 0.0
     else:
         pipe = make_pipeline(method, dev.context, info, estimate_error=estimate_error, **knobs)
         plan_ms = (time.perf_counter() - t2) * 1e3
+        # the previous plan's buffers, for the new plan's temporaries of the same sizes
+        spare = sess.pipe.release_buffers() if sess is not None else ()
     nbytes = buf.height * buf.width * 12
     out = sess.out if sess is not None and sess.out.size == nbytes else cl.Buffer(
         dev.context, cl.mem_flags.READ_WRITE, size=nbytes)
@@ -217,7 +220,8 @@ def run(buf: SampleBuffer, method: str = "box", device: DeviceSpec | Device = No
     if split:  # the positive part first, then the negative one into the same buffer
         cl.enqueue_copy(dev.queue, samples["color"], np.maximum(buf.color, 0),
                         is_blocking=True)
-    ev = pipe(dev.queue, samples, out)
+    with reusing(spare):  # a new plan allocates its temporaries on its first call
+        ev = pipe(dev.queue, samples, out)
     image = np.empty((buf.height, buf.width, 3), np.float32)
     cl.enqueue_copy(dev.queue, image, out, wait_for=[ev])
     error = _read_error(dev.queue, pipe, image.shape[:2]) if estimate_error else None

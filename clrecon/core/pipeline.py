@@ -12,8 +12,10 @@ foreign OpenCL pipeline. :func:`reconstruct` is the convenience path from a host
 """
 from __future__ import annotations
 
+import contextlib
 import inspect
 import os
+import threading
 from dataclasses import dataclass
 from typing import Callable, ClassVar
 
@@ -46,6 +48,28 @@ class _Frame:
     @property
     def spp(self) -> int:
         return self.samples.spp
+
+
+_reuse = threading.local()
+
+
+@contextlib.contextmanager
+def reusing(buffers):
+    """Within the block, a pipeline allocating one of its own temporaries takes a buffer of
+    the same context and size from ``buffers`` (released by a pipeline done with them:
+    :meth:`Pipeline.release_buffers`) before it allocates a new one. A re-planned frame then
+    skips the first touch of hundreds of MB of fresh device memory (on a CPU device, page
+    faults). A temporary's content is undefined either way: a pass that needs zeros clears
+    its buffer (as OpenCL's fresh buffers hold no defined value either). Per thread."""
+    free: dict[tuple[int, int], list[cl.Buffer]] = {}
+    for b in buffers:
+        free.setdefault((b.context.int_ptr, b.size), []).append(b)
+    prev = getattr(_reuse, "free", None)
+    _reuse.free = free
+    try:
+        yield
+    finally:
+        _reuse.free = prev
 
 
 class Pipeline:
@@ -106,9 +130,26 @@ class Pipeline:
 
     def _own_buffer(self, name: str) -> cl.Buffer:
         if name not in self._own:
-            self._own[name] = cl.Buffer(self.context, cl.mem_flags.READ_WRITE,
-                                        max(int(self.plan.temporaries[name]), 4))
+            size = max(int(self.plan.temporaries[name]), 4)
+            free = getattr(_reuse, "free", None) or {}
+            spare = free.get((self.context.int_ptr, size))
+            self._own[name] = spare.pop() if spare else cl.Buffer(
+                self.context, cl.mem_flags.READ_WRITE, size)
         return self._own[name]
+
+    def release_buffers(self) -> list[cl.Buffer]:
+        """Give up this pipeline's own temporaries and those of the pipelines it holds (a
+        later call allocates afresh): what :func:`reusing` hands to a successor."""
+        out, seen, todo = [], set(), [self]
+        while todo:
+            p = todo.pop()
+            if id(p) in seen:
+                continue
+            seen.add(id(p))
+            out.extend(p._own.values())
+            p._own = {}
+            todo.extend(v for v in vars(p).values() if isinstance(v, Pipeline))
+        return out
 
     def describe(self) -> dict:
         """Mode and knobs that ran (reported by ``--json``)."""

@@ -372,3 +372,4 @@ def test_grow_to_a_plan_that_reads_more_fields(device):
     out = _out(device, moving)
     img = _read(device, out, moving, pipe(device.queue, s, out))
     assert "motion" in pipe.plan.fields and np.isfinite(img).all() and img.max() > 0
+
