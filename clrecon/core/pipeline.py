@@ -137,18 +137,25 @@ class Pipeline:
                 self.context, cl.mem_flags.READ_WRITE, size)
         return self._own[name]
 
-    def release_buffers(self) -> list[cl.Buffer]:
-        """Give up this pipeline's own temporaries and those of the pipelines it holds (a
-        later call allocates afresh): what :func:`reusing` hands to a successor."""
+    def pipelines(self) -> list[Pipeline]:
+        """This pipeline and every pipeline it holds (the safeguard's frame and halves), each
+        once."""
         out, seen, todo = [], set(), [self]
         while todo:
             p = todo.pop()
-            if id(p) in seen:
-                continue
-            seen.add(id(p))
+            if id(p) not in seen:
+                seen.add(id(p))
+                out.append(p)
+                todo.extend(v for v in vars(p).values() if isinstance(v, Pipeline))
+        return out
+
+    def release_buffers(self) -> list[cl.Buffer]:
+        """Give up this pipeline's own temporaries and those of the pipelines it holds (a
+        later call allocates afresh): what :func:`reusing` hands to a successor."""
+        out = []
+        for p in self.pipelines():
             out.extend(p._own.values())
             p._own = {}
-            todo.extend(v for v in vars(p).values() if isinstance(v, Pipeline))
         return out
 
     def describe(self) -> dict:

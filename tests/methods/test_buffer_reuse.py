@@ -51,18 +51,9 @@ def test_a_replanned_frame_reuses_the_last_plans_buffers_whatever_they_hold(
     clrecon.run(a, method, device, **knobs)
     got = clrecon.run(b, method, device, **knobs)
     assert got.plan_ms > 0.0 and released  # re-planned, with the last plan's buffers
-    held = {id(x) for x in _all_own(list(api._sessions.values())[-1].pipe)}  # the newest
+    newest = list(api._sessions.values())[-1].pipe
+    held = {id(x) for p in newest.pipelines() for x in p._own.values()}
     assert any(id(x) in held for x in released), "no released buffer was reused"
     assert_close(got.image, _fresh_image(device, method, knobs, b), rtol=0, atol=0,
                  what="re-planned frame on reused buffers")
 
-
-def _all_own(pipe):
-    out, todo, seen = [], [pipe], set()
-    while todo:
-        p = todo.pop()
-        if id(p) not in seen:
-            seen.add(id(p))
-            out.extend(p._own.values())
-            todo.extend(v for v in vars(p).values() if isinstance(v, Pipeline))
-    return out
