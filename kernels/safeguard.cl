@@ -133,7 +133,7 @@ __kernel void safeguard_stats(__global const float *color, __global float *m,
     float3 sa = (float3)(0.0f), sb = (float3)(0.0f);
     /* with quarters: the first quarter of each half (its first half of samples) apart */
     float3 q0 = (float3)(0.0f), q2 = (float3)(0.0f);
-    const int n0 = ha / 2, n2 = (spp - ha) / 2;
+    const int n0 = ha / 2, n2 = hb / 2;
     if (ref_images) {  /* the reference's halves are images (ua, ub), not the samples' means */
         sa = (float)ha * load3(ua, p);
         sb = (float)hb * load3(ub, p);
