@@ -88,10 +88,13 @@ class SweepBlock:
                 f"bytes of local memory for group {self.group} at {spp} spp (device has "
                 f"{dev.local_mem_size})")
         self.supers = int(supers)
-        self.kernel = get_kernel(context, "sweep_block", "sweep_block", {
+        #: the kernel's compile-time defines (``tools/sweep_block_phases.py`` builds variants
+        #: of its source with them)
+        self.defines = {
             "SPP": spp, "SCALES": scales, "SMOOTH_MOTION": smooth_motion,
             "EXPONENT": float(exponent), "EXPONENT_ON": exponent != 1.0, "GROUP": self.group,
-            "SUPER": self.supers})
+            "SUPER": self.supers}
+        self.kernel = get_kernel(context, "sweep_block", "sweep_block", self.defines)
         check_kernel_fits(self.kernel, dev, self.name, self.group,
                           f"group {self.group} at {spp} spp")
 
