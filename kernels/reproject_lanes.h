@@ -2,7 +2,7 @@
  * floatVW onto SIMD registers).
  *
  *   VW, floatv, intv, VLOAD.. the lane width (SPP's largest factor among 8 and 4; 1 otherwise)
- *                            and its vector types and loads
+ *                            and its vector types and loads; COLOR_LANES the lanes' colours
  *   lane_bits(m)             bit j set where lane j of mask m is set (VW > 1)
  *   bucket_lanes(w, ...)     layered_bucket of VW depths, as float (VW > 1)
  *   reproject_lanes(...)     the depth buckets and grid positions of VW samples (below)
@@ -40,6 +40,9 @@ typedef int8 intv;
 #define VLOAD2 vload16
 #define CONVERT_FLOATV convert_float8
 #define CONVERT_UCHARV convert_uchar8
+/* COLOR_LANES(dst, src): the 3 VW floats of VW samples' colours from src into dst */
+#define COLOR_LANES(dst, src) \
+    (vstore16(vload16(0, (src)), 0, (dst)), vstore8(vload8(0, (src) + 16), 0, (dst) + 16))
 #elif VW == 4
 typedef float4 floatv;
 typedef int4 intv;
@@ -49,6 +52,8 @@ typedef int4 intv;
 #define VLOAD2 vload8
 #define CONVERT_FLOATV convert_float4
 #define CONVERT_UCHARV convert_uchar4
+#define COLOR_LANES(dst, src) \
+    (vstore8(vload8(0, (src)), 0, (dst)), vstore4(vload4(0, (src) + 8), 0, (dst) + 8))
 #endif
 
 #if VW > 1
