@@ -111,10 +111,37 @@ __kernel void filter_sheared_recursive(__global const float *params, __global fl
  * are gathered once into a private array, lane l holding line l (lines past dim repeat the
  * last one and are not stored back), filtered there as FR_VW-wide vectors with the NCH
  * channels' chains side by side, and written back. Axis 1's lines are columns, adjacent in
- * memory: a full set of them moves as vector loads and stores. */
+ * memory: a full set of them moves as vector loads and stores; axis 0's are rows, and a full
+ * set of them moves FR_VW elements at a time as row vectors and a transpose (fr_transpose). */
 typedef FR_CAT(float, FR_VW) frvec;
 #define FR_VLOAD(i, p) FR_CAT(vload, FR_VW)(i, p)
 #define FR_VSTORE(v, i, p) FR_CAT(vstore, FR_VW)(v, i, p)
+
+/* Transpose the FR_VW x FR_VW block m (m[k] its row k) in registers: log2(FR_VW) rounds of
+ * interleaving rows k and k + FR_VW / 2 (lanes a0 b0 a1 b1 .. of the low halves into row 2k,
+ * of the high halves into 2k + 1). Axis 0's lines are rows: FR_VW of them move between the
+ * grid and the (element, lane) array as row vectors and one transpose per FR_VW elements,
+ * where an element-wise copy made the compiler gather (and scatter) them lane by lane: the
+ * copies were most of the pass (deep 1280x720 8 spp, PoCL). Pure data movement: the same
+ * values. */
+inline void fr_transpose(frvec *m)
+{
+    for (int round = 1; round < FR_VW; round *= 2) {
+        frvec t[FR_VW];
+        for (int k = 0; k < FR_VW / 2; ++k) {
+            const frvec a = m[k], b = m[k + FR_VW / 2];
+#if FR_VW == 8
+            t[2 * k] = (frvec)(a.s0, b.s0, a.s1, b.s1, a.s2, b.s2, a.s3, b.s3);
+            t[2 * k + 1] = (frvec)(a.s4, b.s4, a.s5, b.s5, a.s6, b.s6, a.s7, b.s7);
+#else
+            t[2 * k] = (frvec)(a.s0, b.s0, a.s1, b.s1);
+            t[2 * k + 1] = (frvec)(a.s2, b.s2, a.s3, b.s3);
+#endif
+        }
+        for (int k = 0; k < FR_VW; ++k)
+            m[k] = t[k];
+    }
+}
 
 __kernel SCALAR_WORK_ITEMS
 void filter_sheared_recursive(__global const float *params, __global float *grids)
@@ -142,7 +169,18 @@ void filter_sheared_recursive(__global const float *params, __global float *grid
                 for (int i = 0; i < dim; ++i)
                     FR_VSTORE(FR_VLOAD(0, r + i * dim), i, o);
             } else {
-                for (int i = 0; i < dim; ++i)
+                int i = 0;
+                if (!ax1 && nl == FR_VW) {  /* full rows: blocks of FR_VW elements */
+                    for (; i + FR_VW <= dim; i += FR_VW) {
+                        frvec m[FR_VW];
+                        for (int l = 0; l < FR_VW; ++l)
+                            m[l] = FR_VLOAD(0, r + l * dim + i);
+                        fr_transpose(m);
+                        for (int k = 0; k < FR_VW; ++k)
+                            FR_VSTORE(m[k], i + k, o);
+                    }
+                }
+                for (; i < dim; ++i)
                     for (int l = 0; l < FR_VW; ++l)
                         o[i * FR_VW + l] = r[i * along + min(l, nl - 1) * across];
             }
@@ -173,7 +211,18 @@ void filter_sheared_recursive(__global const float *params, __global float *grid
                 for (int i = 0; i < dim; ++i)
                     FR_VSTORE(FR_VLOAD(i, o), 0, r + i * dim);
             } else {
-                for (int i = 0; i < dim; ++i)
+                int i = 0;
+                if (!ax1 && nl == FR_VW) {
+                    for (; i + FR_VW <= dim; i += FR_VW) {
+                        frvec m[FR_VW];
+                        for (int k = 0; k < FR_VW; ++k)
+                            m[k] = FR_VLOAD(i + k, o);
+                        fr_transpose(m);
+                        for (int l = 0; l < FR_VW; ++l)
+                            FR_VSTORE(m[l], 0, r + l * dim + i);
+                    }
+                }
+                for (; i < dim; ++i)
                     for (int l = 0; l < nl; ++l)
                         r[i * along + l * across] = o[i * FR_VW + l];
             }

@@ -42,6 +42,8 @@ inline float3 pixel_mean(__global const float *color, int stride, int offset, in
 #define LC_CAT(a, b) LC_CAT_(a, b)
 typedef LC_CAT(float, CW) cwf;
 typedef LC_CAT(int, CW) cwi;
+typedef LC_CAT(uint, CW) cwu;
+#define as_cwu LC_CAT(as_uint, CW)
 #define CW_VLOAD(i, p) LC_CAT(vload, CW)(i, p)
 #define CW_VSTORE(v, i, p) LC_CAT(vstore, CW)(v, i, p)
 #define CW_INT(v) LC_CAT(convert_int, CW)(v)
@@ -99,6 +101,17 @@ __kernel void composite(__global const float *color, const int sample_stride,
              * bilinear read is the texel itself, CW adjacent ones */
             for (int c = 0; c < NCH; ++c)
                 v[c] = CW_VLOAD(0, f + c * FT * FT + ix.s0);
+        } else if (inv_s <= 0.5f) {
+            /* s >= 2: the lanes' texels ix .. ix1 lie within CW of ix.s0 in the row, so one
+             * vector load per row and a lane permutation (shuffle) select them: the same
+             * values as gathering them one by one */
+            const cwu m0 = as_cwu(ix - ix.s0), m1 = as_cwu(ix1 - ix.s0);
+            for (int c = 0; c < NCH; ++c) {
+                __global const float *q = f + c * FT * FT + ix.s0;
+                const cwf r0 = CW_VLOAD(0, q), r1 = CW_VLOAD(0, q + FT);
+                v[c] = (1.0f - wy) * ((1.0f - wx) * shuffle(r0, m0) + wx * shuffle(r0, m1))
+                       + wy * ((1.0f - wx) * shuffle(r1, m0) + wx * shuffle(r1, m1));
+            }
         } else {
             for (int c = 0; c < NCH; ++c) {
                 __global const float *q = f + c * FT * FT;

@@ -44,6 +44,11 @@ def test_filter_sheared_matches_reference(device, rng, lines, gmax, width):
     if lines > 1:
         assert any(d % lines for d in dims), dims  # a partial set of lanes
         assert any(d > lines for d in dims), dims  # more than one work-item a grid
+        # axis 0's full sets of lines move in lines x lines blocks and a transpose, the rest
+        # of a line element by element: a grid with both
+        ax0 = params[..., geom.P_DIM][used & (params[..., geom.P_AXIS] == 0)].astype(int)
+        assert any(d >= lines for d in ax0.tolist()), ax0
+        assert gmax != 8 or any(d >= 2 * lines and d % lines for d in ax0.tolist()), ax0
     q = device.queue
     nslots = params.shape[0] * params.shape[1]
     fshape = params.shape[:2] + (geom.NCH, layout.filtered_side ** 2)
