@@ -35,6 +35,8 @@ def test_slot_reads_is_the_kernels_pick(x0, y0, reach, sub):
     w, h = 128, 120  # the last tile row is clipped
     got = lr.slot_reads(x0, y0, 32, reach, sub, w, h)
     assert got == brute_force(x0, y0, 32, reach, sub, w, h)
+    px = lr.slot_pixels(x0, y0, 32, reach, sub, w, h)
+    assert np.unique(px).size == px.size and px.min() >= 0 and px.max() < w * h
     assert 0 < got <= (min(w, x0 + 32 + reach) - max(0, x0 - reach)) * h
 
 
