@@ -47,21 +47,22 @@ __kernel void tile_stats(__global const float *depth, __global const float *moti
     const int total = TILE * TILE * SPP;
     /* BATCH visits at a time: their addresses and loads first (independent, so their cache
      * misses overlap), then their adds in visit order (the same sums as one at a time) */
-    for (int j0 = 0; j0 < total; j0 += BATCH * stride) {
+    const int visits = 1 + (total - 1) / stride;   /* v stride < total: no overflow */
+    for (int v0 = 0; v0 < visits; v0 += BATCH) {
         float w[BATCH];
 #if HAS_MOTION
         float2 mv[BATCH];
 #endif
         int ok[BATCH];
         for (int u = 0; u < BATCH; ++u) {
-            const int j = j0 + u * stride;
             ok[u] = 0;
             w[u] = 0.0f;
 #if HAS_MOTION
             mv[u] = (float2)(0.0f);
 #endif
-            if (j >= total)
+            if (v0 + u >= visits)
                 continue;
+            const int j = (v0 + u) * stride;
             int a = j;
             if (stride > 1)
                 a += (int)(xorshift32(&state) % (uint)min(stride, total - j));
