@@ -8,10 +8,10 @@
  *   1. reads the samples of its window ((4 SUPER + 2R)^2 pixels, R = 2 or 3, those in the
  *      image) in window order: rows, columns, sample index, which is the reference's tie
  *      order (clrecon/methods/sweep/reference.py), into local records (D or its blend, r, g, b);
- *   2. sorts their (depth, window position) entries with a stable radix sort in local
- *      memory, once for all its pixels (not once per pixel, nor once per block: a sample
- *      lies in up to four blocks' windows; with SUPER = 2 and R = 2 a work-item reads and
- *      sorts 144 window pixels for 64 pixels, one block alone 64 for 16);
+ *   2. sorts their (depth key, window position) entries (sweep_order.h) with a stable
+ *      radix sort in local memory, once for all its pixels (not once per pixel, nor once
+ *      per block: a sample lies in up to four blocks' windows; with SUPER = 2 and R = 2 a
+ *      work-item reads and sorts 144 window pixels for 64 pixels, one block alone 64 for 16);
  *   3. with SUPER > 1, splits the sorted list into each block's window (in order);
  *   4. sweeps each block's list once with its 16 pixels in float16 lanes: each sample's
  *      record is read once and shared by the lanes, and lanes whose box does not hold the
@@ -25,14 +25,15 @@
  *   read in place for the safeguard: stride the frame's spp); positions are not needed:
  *   every sample counts as inside its own pixel, as the reference's clamp makes it.
  *   Output: out (H, W, 3) float32.
- * Compile-time: SPP (<= 255), SCALES (2 or 4), SMOOTH_MOTION (0/1), EXPONENT and
- *   EXPONENT_ON (the paper's 1.3 variant: weights raised to EXPONENT; defaults and R in
- *   sweep.h), SUPER (1 or 2: the host takes 2 where its local memory fits,
- *   clrecon/methods/sweep/block.py).
+ * Compile-time: SPP (<= 255), SCALES (2 or 4), SMOOTH_MOTION (0/1), DEPTH_KEY_SHIFT
+ *   (sweep_order.h), EXPONENT and EXPONENT_ON (the paper's 1.3 variant: weights raised to
+ *   EXPONENT; defaults and R in sweep.h), SUPER (1 or 2: the host takes 2 where its local
+ *   memory fits, clrecon/methods/sweep/block.py).
  * Tunables: GROUP (work-items per group; work-items are independent: no barriers, each
  *   has its own local memory: 2 * SORT_SLOTS * 8 + SN * 16 bytes).
  */
 #include "sweep.h"
+#include "sweep_order.h"
 
 #ifndef GROUP
 #define GROUP 1  // work-items (blocks) per work-group
@@ -55,11 +56,12 @@
 #endif
 
 /* Stable LSD radix sort, 8-bit digits, of n entries (key << 32 | payload) from a into a or
- * b; returns which. The keys are depth bits (depth > 0 or inf, so they order like the
- * depths), reduced first to min(key, cap) - lo with lo the smallest key and cap one past the
- * largest finite one: the same order and ties, fewer digits (a window of misses at inf and
- * finite depths needed all four). Only the digits of the reduced range are sorted, and a
- * digit that is the same for every entry is skipped. */
+ * b; returns which. The keys are sweep_depth_key of the depths (sweep_order.h: they order
+ * like the depths, to its precision), reduced first to min(key, cap) - lo with lo the
+ * smallest key and cap one past the largest finite one: the same order and ties, fewer
+ * digits (a window of misses at inf and finite depths needed all four). Only the digits
+ * of the reduced range are sorted, and a digit that is the same for every entry is
+ * skipped. */
 inline __local ulong *sweep_block_sort(__local ulong *a, __local ulong *b, const int n,
                                        const uint lo, const uint cap)
 {
@@ -196,7 +198,7 @@ void sweep_block(__global const float *color, __global const float *depth,
      * scales, D itself with four); its sort entry: depth bits << 32 | the record's
      * index | window column tx << 16 | window row ty << 20 */
     int n = 0;
-    uint lo = 0x7F800000u, top = 0;  /* smallest key, largest finite one */
+    uint lo = sweep_depth_key(INFINITY), top = 0;  /* smallest key, largest finite one */
     for (int ty = max(0, -y0); ty < min(SW, height - y0); ++ty) {
         for (int tx = max(0, -x0); tx < min(SW, width - x0); ++tx) {
             const int base = pixel_index(x0 + tx, y0 + ty, width) * stride + offset;
@@ -214,9 +216,9 @@ void sweep_block(__global const float *color, __global const float *depth,
                 d *= dscale;
 #endif
                 lrec[lid][n] = (float4)(d, vload3(g, color));
-                const uint key = as_uint(z);
+                const uint key = sweep_depth_key(z);
                 lo = min(lo, key);
-                top = max(top, key < 0x7F800000u ? key : 0u);
+                top = max(top, as_uint(z) < 0x7F800000u ? key : 0u);
                 lsort[lid][0][n] = ((ulong)key << 32) | (uint)(n | tx << 16 | ty << 20);
             }
         }

@@ -3,8 +3,10 @@
  *
  * sweep_prepare: one work-item per pixel. For each of the pixel's SPP samples computes
  *   D = dscale * max(2 |coc(w)|, |motion|)   (the motion term only with SMOOTH_MOTION)
- * and writes the samples sorted by depth (stable: equal depths keep sample order) as
- *   keys   float4 (H, W, SPP): (x, y, depth, D)
+ * and writes the samples sorted by depth (stable: equal depths keep sample order; the order's
+ * precision is sweep_order.h's) as
+ *   keys   float4 (H, W, SPP): (x, y, order depth, D); the order depth is sweep_order_depth
+ *          of the depth, all sweep_resolve compares
  *   colors float4 (H, W, SPP): (r, g, b, 0)
  * Positions are moved strictly inside their own pixel, [p + e, p + 1 - e] with
  * e = max(2^-12, 1 ulp) (validation allows a sample on an edge, or a hair past it): every
@@ -12,10 +14,12 @@
  * is left without weight (a 1 spp frame whose samples sit on pixel corners gave 0/0).
  * Inputs are the SoA sample fields: color (H,W,S,3), position (H,W,S,2), depth (H,W,S),
  * motion (H,W,S,2). coc(w) = c0 / w + c1 (inf depth gives c1).
- * Compile-time: SPP (samples per pixel, <= 256), SMOOTH_MOTION (0/1; defaults in sweep.h).
+ * Compile-time: SPP (samples per pixel, <= 256), SMOOTH_MOTION (0/1; defaults in sweep.h),
+ * DEPTH_KEY_SHIFT (sweep_order.h).
  * Local size: a launch parameter only (tuned).
  */
 #include "sweep.h"
+#include "sweep_order.h"
 #include "vec_hint.h"
 
 /* v moved strictly inside pixel p (see the header); the NumPy reference does the same */
@@ -45,10 +49,11 @@ void sweep_prepare(__global const float *color, __global const float *position,
 #endif
         const float2 p = vload2(base + i, position);
         const float x = sweep_inside(p.x, px), y = sweep_inside(p.y, py);
-        k[i] = (float4)(x, y, z, dscale * d);
+        const float zo = sweep_order_depth(z);
+        k[i] = (float4)(x, y, zo, dscale * d);
         /* insertion sort of indices by depth; strict > keeps equal depths in order */
         int j = i;
-        while (j > 0 && k[order[j - 1]].z > z) {
+        while (j > 0 && k[order[j - 1]].z > zo) {
             order[j] = order[j - 1];
             --j;
         }

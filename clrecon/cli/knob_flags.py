@@ -48,6 +48,8 @@ DESCRIPTIONS = {
     "tile_merge": "how sort=tile sorts a tile: auto, serial or bitonic",
     "group": "4x4 blocks per work-group of sort=block",
     "specialize": "plan only what the frame needs (--no-specialize: the full plan always)",
+    "exact_depth_order": "order the sweep by exact depths (default: to 12 significant bits, "
+                         "kernels/sweep_order.h)",
     "mode": "practical (the 2015 method) or lrdm (its 2014 baseline)",
     "filter": "screen-space filter: sheared, mip or rotated (None: sheared; lrdm: rotated)",
     "stats_stride": "every n-th sample in the statistics (1: all; None: 3*spp)",

@@ -37,6 +37,7 @@ BAD = {
         "tile_merge": ["quick", 1],
         "group": [0, -3, 2**31, 2.0, True],
         "specialize": [1, None],
+        "exact_depth_order": [1, "yes", None],
     },
     "layered": {
         "mode": ["fast", 1],

@@ -19,6 +19,11 @@ Plans (knobs in brackets):
 
 ``diameter_scale`` scales the denoising diameter ``max(2|coc|, |motion|)``;
 ``smooth_motion`` (default: whether the frame has motion) adds the motion term.
+The front-to-back order compares depths to 12 significant bits (``kernels/sweep_order.h``:
+depths within a relative 2^-11 of each other are ties, which keep window order): it halves
+the block sort's digit passes (``sweep_block`` 0.88-0.92x at deep 1280x720 8 spp, PoCL) and
+moved no built-in scene's PSNR at 512x512 8 spp by more than 0.001 dB.
+``exact_depth_order=True`` orders by the exact depths (the paper).
 
 Model only what the frame requires: when the frame inspection says no sample's denoising
 diameter exceeds the narrow block (1 px for two scales and the three layers, 3 px for four
@@ -49,6 +54,7 @@ from clrecon.methods.box import Box, box_plan
 from clrecon.methods.sweep.block import SweepBlock, block_local_bytes
 from clrecon.methods.sweep.layers import SweepLayerResolve, SweepLayerSums
 from clrecon.methods.sweep.prepare import SweepPrepare
+from clrecon.methods.sweep.reference import DEPTH_KEY_SHIFT
 from clrecon.methods.sweep.resolve import (
     TILE_MERGES,
     SweepResolve,
@@ -202,8 +208,11 @@ class SweepPipeline(Pipeline):
                  exponent: float = 1.0, smooth_motion: bool | None = None,
                  diameter_scale: float = 1.0, sort: str | None = None, tile: int | None = None,
                  tile_merge: str | None = None, group: int | None = None,
-                 specialize: bool = True):
+                 specialize: bool = True, exact_depth_order: bool = False):
         super().__init__(context, info)
+        # the order's depth precision (kernels/sweep_order.h): 12 significant bits, or exact
+        self.exact_depth_order = check_bool("exact_depth_order", exact_depth_order)
+        shift = 0 if self.exact_depth_order else DEPTH_KEY_SHIFT
         scales, dof_layers, exponent, smooth_motion, diameter_scale, sort, tile, tile_merge, \
             group, specialize = check_knobs(context, info, scales, dof_layers, exponent,
                                             smooth_motion, diameter_scale, sort, tile,
@@ -280,7 +289,7 @@ class SweepPipeline(Pipeline):
             else:
                 self.tuning["sweep_block"] = "api"
             self.block = SweepBlock(context, spp, self.scales, exponent, self.smooth_motion,
-                                    group)
+                                    group, depth_key_shift=shift)
 
             def block(queue, f, wait):
                 return [("sweep_block", self.block(queue, f.samples, self.diameter_scale,
@@ -292,7 +301,7 @@ class SweepPipeline(Pipeline):
                                (Step("sweep_block", reads, ("out",), block),), {}, bounds))
             return
         self.prepare = SweepPrepare(context, spp, self.smooth_motion,
-                                    local(SweepPrepare.TUNABLE))
+                                    local(SweepPrepare.TUNABLE), depth_key_shift=shift)
         if given:  # the caller's knobs win over tuning; the rest from the pass default
             config = default_config(SweepResolve.TUNABLE, describe(dev)) | given
             if config["sort"] == "pixel":
@@ -339,7 +348,7 @@ class SweepPipeline(Pipeline):
         if self.dof_layers:
             return d | {"mode": "dof_layers", "smooth_motion": False}
         d |= {"mode": f"{self.scales}-scale", "scales": self.scales, "exponent": self.exponent,
-              "smooth_motion": self.smooth_motion}
+              "smooth_motion": self.smooth_motion, "exact_depth_order": self.exact_depth_order}
         if self.block is not None:
             return d | {"sort": "block", "group": self.block.group}
         return d | {"sort": self.resolve.sort, "tile": self.resolve.tile,

@@ -6,6 +6,7 @@ import pyopencl as cl
 
 from clrecon.core.device import get_kernel
 from clrecon.core.pipeline import DeviceSamples
+from clrecon.methods.sweep.reference import DEPTH_KEY_SHIFT
 from clrecon.tune.runtime import check_kernel_fits
 from clrecon.tune.tunable import Tunable
 
@@ -64,7 +65,10 @@ class SweepBlock:
                       rtol=1e-4, atol=1e-5, gpu={"group": 64})
 
     def __init__(self, context: cl.Context, spp: int, scales: int = 2, exponent: float = 1.0,
-                 smooth_motion: bool = True, group: int = 1, supers: int | None = None):
+                 smooth_motion: bool = True, group: int = 1, supers: int | None = None,
+                 depth_key_shift: int = DEPTH_KEY_SHIFT):
+        """``depth_key_shift``: low mantissa bits of a depth the front-to-back order
+        ignores (``kernels/sweep_order.h``; 0: the exact order)."""
         if scales not in (2, 4):
             raise ValueError(f"scales: must be 2 or 4, got {scales}")
         if not exponent > 0:
@@ -93,7 +97,7 @@ class SweepBlock:
         self.defines = {
             "SPP": spp, "SCALES": scales, "SMOOTH_MOTION": smooth_motion,
             "EXPONENT": float(exponent), "EXPONENT_ON": exponent != 1.0, "GROUP": self.group,
-            "SUPER": self.supers}
+            "SUPER": self.supers, "DEPTH_KEY_SHIFT": int(depth_key_shift)}
         self.kernel = get_kernel(context, "sweep_block", "sweep_block", self.defines)
         check_kernel_fits(self.kernel, dev, self.name, self.group,
                           f"group {self.group} at {spp} spp")

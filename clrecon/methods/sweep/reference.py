@@ -11,7 +11,10 @@ Conventions shared with the kernels (and not fixed by the paper):
 * The window of a pixel holds every sample of the ``(2R+1)^2`` pixels around it that lie in
   the image (R = 2 for two scales, 3 for four); pixels outside contribute nothing.
 * Front-to-back order sorts on depth; ties (e.g. misses at ``inf``) keep window order: window
-  pixels row-major from the top-left, then sample index.
+  pixels row-major from the top-left, then sample index. The depth's precision in the order
+  is ``kernels/sweep_order.h``'s: :func:`depth_order_key`, its float32 bits without the
+  ``shift`` lowest (default :data:`DEPTH_KEY_SHIFT`; 0: the exact order), so depths that
+  agree in their top ``24 - shift`` significant bits are ties.
 * Denoising diameter (the paper's default, a knob): ``D = scale * max(2 |coc(w)|, |motion|)``
   with the motion term only when motion is smoothed.
 * ``exponent`` (the paper's 1.3 variant): each sample's weight ``w`` is raised to it before
@@ -30,6 +33,18 @@ import numpy as np
 
 from clrecon.core.samples import SampleBuffer
 
+#: low mantissa bits of a depth's float32 that the front-to-back order ignores
+#: (``kernels/sweep_order.h``'s DEPTH_KEY_SHIFT default)
+DEPTH_KEY_SHIFT = 12
+
+
+def depth_order_key(z: np.ndarray, shift: int = DEPTH_KEY_SHIFT) -> np.ndarray:
+    """The order's key of depths ``z`` (> 0 or inf; float32 values): their float32 bits
+    shifted right by ``shift``, as ``sweep_depth_key`` in ``kernels/sweep_order.h``."""
+    if not 0 <= shift <= 20:
+        raise ValueError(f"shift: 0 (exact) to 20, got {shift}")
+    return np.asarray(z, np.float32).view(np.uint32) >> np.uint32(shift)
+
 
 def denoising_diameter(buf: SampleBuffer, smooth_motion: bool = True,
                        scale: float = 1.0) -> np.ndarray:
@@ -44,8 +59,10 @@ def _box(x, radius):
     return np.where((x >= -radius) & (x < radius), 0.5 / radius, 0.0)
 
 
-def _gather(buf: SampleBuffer, radius: int, diameter: np.ndarray):
-    """Window samples of every pixel in front-to-back order: dict of (H, W, N) arrays."""
+def _gather(buf: SampleBuffer, radius: int, diameter: np.ndarray,
+            shift: int = DEPTH_KEY_SHIFT):
+    """Window samples of every pixel in front-to-back order (:func:`depth_order_key` with
+    ``shift``): dict of (H, W, N) arrays."""
     h, w, s = buf.shape
     k = 2 * radius + 1
     pad = [(radius, radius), (radius, radius), (0, 0)]
@@ -73,16 +90,17 @@ def _gather(buf: SampleBuffer, radius: int, diameter: np.ndarray):
     for name, arr in fields.items():
         parts = [arr[dy:dy + h, dx:dx + w] for dy in range(k) for dx in range(k)]
         out[name] = np.concatenate(parts, axis=-1)  # window row-major, then sample
-    order = np.argsort(out["z"], axis=-1, kind="stable")
+    order = np.argsort(depth_order_key(out["z"], shift), axis=-1, kind="stable")
     out = {n: np.take_along_axis(a, order, -1) for n, a in out.items()}
     out["dx"] = out["x"] - (xs[..., None] + 0.5)
     out["dy"] = out["y"] - (ys[..., None] + 0.5)
     return out
 
 
-def sweep_two_scale(buf: SampleBuffer, diameter: np.ndarray, exponent: float = 1.0):
+def sweep_two_scale(buf: SampleBuffer, diameter: np.ndarray, exponent: float = 1.0,
+                    shift: int = DEPTH_KEY_SHIFT):
     """Appendix A: 1x1 and 5x5 blocks, blended. Returns (H, W, 3) float64."""
-    g = _gather(buf, 2, diameter)
+    g = _gather(buf, 2, diameter, shift)
     ns = buf.spp
     h, w = buf.height, buf.width
     cov_1, cov_5, cov = (np.zeros((h, w)) for _ in range(3))
@@ -103,9 +121,10 @@ def sweep_two_scale(buf: SampleBuffer, diameter: np.ndarray, exponent: float = 1
     return total / cov[..., None]
 
 
-def sweep_four_scale(buf: SampleBuffer, diameter: np.ndarray, exponent: float = 1.0):
+def sweep_four_scale(buf: SampleBuffer, diameter: np.ndarray, exponent: float = 1.0,
+                     shift: int = DEPTH_KEY_SHIFT):
     """Appendix B: 1x1, 3x3, 5x5 and 7x7 blocks. Returns (H, W, 3) float64."""
-    g = _gather(buf, 3, diameter)
+    g = _gather(buf, 3, diameter, shift)
     ns = buf.spp
     h, w = buf.height, buf.width
     c1, c3, c5, c7, cov = (np.zeros((h, w)) for _ in range(5))
@@ -176,14 +195,15 @@ def _box_sum(a, r: int = 2):
 
 def reconstruct(buf: SampleBuffer, scales: int = 2, dof_layers: bool = False,
                 exponent: float = 1.0, smooth_motion: bool = True,
-                diameter_scale: float = 1.0) -> np.ndarray:
+                diameter_scale: float = 1.0, exact_depth_order: bool = False) -> np.ndarray:
     """The whole method in NumPy (small inputs only: it loops over window samples)."""
+    shift = 0 if exact_depth_order else DEPTH_KEY_SHIFT
     if dof_layers:
         d = denoising_diameter(buf, smooth_motion=False, scale=diameter_scale)
         return sweep_dof_layers(buf, d)
     d = denoising_diameter(buf, smooth_motion, diameter_scale)
     if scales == 2:
-        return sweep_two_scale(buf, d, exponent)
+        return sweep_two_scale(buf, d, exponent, shift)
     if scales == 4:
-        return sweep_four_scale(buf, d, exponent)
+        return sweep_four_scale(buf, d, exponent, shift)
     raise ValueError(f"scales: must be 2 or 4, got {scales}")
