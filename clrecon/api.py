@@ -23,6 +23,7 @@ from clrecon.core.plan import BOX_PLAN
 from clrecon.core.samples import FIELDS, FrameInfo, SampleBuffer
 from clrecon.methods import box, layered, splat, sweep  # noqa: F401  (they register themselves)
 from clrecon.methods.guided import check_radius
+from clrecon.methods.nlm import check_radius as check_nlm_radius
 from clrecon.methods.safeguard import Safeguarded
 from clrecon.tune.runtime import override_key
 
@@ -32,7 +33,8 @@ __all__ = ["METHODS", "PIPELINE_KNOBS", "Reconstruction", "clear_sessions", "mak
 
 def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool = False,
                   safeguard: bool | None = None, estimate_error: bool = False,
-                  guided: int = 0, guide_blend: bool = True, **knobs) -> Pipeline:
+                  guided: int = 0, guide_blend: bool = True, nlm: int = 0,
+                  **knobs) -> Pipeline:
     """Plan ``method`` for frames like ``info`` on ``context``.
 
     ``info`` may describe a family rather than one frame: a renderer that knows its largest
@@ -52,22 +54,28 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     box. ``guide_blend`` (with ``guided``) then blends each refined half toward the method's
     own image wherever the safeguard's estimator, with the refinement in box's place, says
     the method's is the better (its blurred regions, where its image is nearly noise-free).
+    ``nlm=R`` (1..10; 0: off) then averages each half's image further over (2R+1)^2 pixels
+    with dual-buffer non-local means, each half weighted by the other
+    (:mod:`clrecon.methods.nlm`); same needs as ``guided``.
     """
     safeguard = check_bool("safeguard", safeguard, none_ok=True)
     estimate_error = check_bool("estimate_error", estimate_error)
     guided = check_radius(guided)
+    nlm = check_nlm_radius(nlm)
     guide_blend = check_bool("guide_blend", guide_blend)
     inner = make_method(method, context, info, **knobs)
     if safeguard is None:
         safeguard = method != "box" and info.spp >= 2
     for name, on, other in (("guided", guided, "box has no image of its own to guide the "
                              "regression; pick a method (sweep, layered or splat)"),
+                            ("nlm", nlm, "box has no image of its own to filter; pick a "
+                             "method (sweep, layered or splat)"),
                             ("safeguard", safeguard, "box is the unbiased estimate the "
                              "safeguard blends toward; it has nothing to safeguard")):
         if on and method == "box":
             raise ValueError(f"{name}: {other}")
     # each needs two independent halves of every pixel's samples
-    for name, on, hint in (("guided", guided, ""), ("safeguard", safeguard,
+    for name, on, hint in (("guided", guided, ""), ("nlm", nlm, ""), ("safeguard", safeguard,
                                                     "; pass safeguard=False"),
                            ("estimate_error", estimate_error, "")):
         if on and info.spp < 2:
@@ -75,9 +83,9 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
                              f"the frame has {info.spp}{hint}")
     # a frame without blur is planned as box, with nothing to blend: the method's own
     # pipeline, unless it may grow into a blurred frame (the wrapper re-plans both)
-    if estimate_error or guided or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
+    if estimate_error or guided or nlm or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
         pipe = Safeguarded(context, info, method, knobs, blend=bool(safeguard), full=inner,
-                           guided=guided, guide_blend=guide_blend)
+                           guided=guided, guide_blend=guide_blend, nlm=nlm)
     else:
         pipe = inner
     pipe.grow, pipe.knobs = bool(grow), dict(knobs)
@@ -85,7 +93,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
 
 
 #: knobs every method takes through :func:`make_pipeline` (beside its class's own)
-PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided", "guide_blend")
+PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided", "guide_blend", "nlm")
 
 
 def method_knobs(method: str) -> set[str]:

@@ -44,7 +44,8 @@ from clrecon.scenes import get_scene, render_reference, render_samples
 #: not registered is skipped, a knob a method does not take is an error. ``safeguard=False``
 #: is the paper's method alone; ``+safeguard`` the method's default
 #: (:mod:`clrecon.methods.safeguard`); ``guided`` the method's halves refined by their box
-#: images (:mod:`clrecon.methods.guided`)
+#: images (:mod:`clrecon.methods.guided`), ``nlm`` the halves further averaged by dual-buffer
+#: non-local means (:mod:`clrecon.methods.nlm`)
 TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
     "box": (("box", {}),),
     "sweep": (
@@ -78,6 +79,7 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
         ("splat +safeguard", {}),
         ("splat guided", {"guided": 2, "safeguard": False}),
         ("splat guided +safeguard", {"guided": 2}),
+        ("splat guided nlm +safeguard", {"guided": 2, "nlm": 5}),
     ),
 }
 

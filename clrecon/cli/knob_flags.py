@@ -86,6 +86,8 @@ DESCRIPTIONS = {
               "(2N+1)^2 windows (0: off; 1..8)",
     "guide_blend": "with --guided: blend each refined half toward the method's own image where "
                    "that is estimated the better",
+    "nlm": "average each half's image further with non-local means over (2N+1)^2 pixels, "
+           "weighted by the other half (0: off; 1..10)",
 }
 
 

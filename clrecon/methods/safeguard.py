@@ -86,6 +86,8 @@ from clrecon.core.pipeline import DeviceSamples, Pipeline, make_method
 from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
 from clrecon.methods.guided import GuidedPasses, check_radius
+from clrecon.methods.nlm import NlmPasses
+from clrecon.methods.nlm import check_radius as check_nlm_radius
 from clrecon.methods.safeguard_passes import SafeguardPasses, halves, measures_convergence
 
 # the NumPy reference and the blend kernel's modes live in their own module; re-exported
@@ -125,8 +127,9 @@ class Safeguarded(Pipeline):
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
                  full: Pipeline | None = None, views: bool = True, joint: bool = True,
-                 guided: int = 0, guide_blend: bool = True):
-        self._flags = dict(views=views, joint=joint, guided=guided, guide_blend=guide_blend)
+                 guided: int = 0, guide_blend: bool = True, nlm: int = 0):
+        self._flags = dict(views=views, joint=joint, guided=guided, guide_blend=guide_blend,
+                           nlm=nlm)
         if info.spp < 2:
             raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent "
                              f"halves), the frame has {info.spp}")
@@ -146,10 +149,14 @@ class Safeguarded(Pipeline):
         # guided: the halves' images refined by their box images (clrecon.methods.guided);
         # the image is the refined halves' mean, with or without the blend
         self.guided = 0 if is_box else check_radius(guided)
-        if self.guided and not self.full.halves_mean:
-            raise ValueError(f"guided: {method}'s image is not the mean of its halves' "
-                             f"images, so the refined halves cannot stand for it")
-        self.halves_mean = (self.mode == MODE_BLEND or bool(self.guided)) and \
+        # nlm: the halves' images (the method's or the refined ones) averaged further with
+        # dual-buffer non-local means (clrecon.methods.nlm)
+        self.nlm = 0 if is_box else check_nlm_radius(nlm)
+        for knob, on in (("guided", self.guided), ("nlm", self.nlm)):
+            if on and not self.full.halves_mean:
+                raise ValueError(f"{knob}: {method}'s image is not the mean of its halves' "
+                                 f"images, so the filtered halves cannot stand for it")
+        self.halves_mean = (self.mode == MODE_BLEND or bool(self.guided or self.nlm)) and \
             self.full.halves_mean
         ha, hb = halves(info.spp)
         self.half_a = self.half_b = None
@@ -216,6 +223,12 @@ class Safeguarded(Pipeline):
             temps |= {"ba": npx * 12, "bb": npx * 12}
             steps.append(Step("guided_blend", ("qa", "qb", "ma", "mb"), ("ba", "bb"),
                               self._guide_blend_step()))
+        if self.nlm:
+            self.nlm_passes = NlmPasses(context, self.nlm)
+            temps |= self.nlm_passes.temporaries(info.width, info.height)
+            self.nlm_in = self.half_images
+            steps.append(Step("nlm", self.nlm_in, ("na", "nb"), self._nlm_step()))
+            self.half_images = ("na", "nb")
         images = () if is_box else self.half_images if self.halves_mean else \
             ("m",) + self.half_images
         steps.append(Step("safeguard_stats", ("color",) + images,
@@ -232,7 +245,7 @@ class Safeguarded(Pipeline):
                           self._blend_step()))
         bounds = tuple(self.full.plan.bounds) + shape_bounds(
             info, "the halves' pipelines are planned for spp // 2 and spp - spp // 2")
-        suffix = ("guided+" if self.guided else "") + (
+        suffix = ("guided+" if self.guided else "") + ("nlm+" if self.nlm else "") + (
             "safeguard" if self.mode == MODE_BLEND else "error")
         plan = Plan(method, f"{self.full.plan.name}+{suffix}", inner_fields, tuple(steps),
                     temps, _unique(bounds))
@@ -313,6 +326,14 @@ class Safeguarded(Pipeline):
                                      f.spp, wait_for)
         return run
 
+    def _nlm_step(self):
+        def run(queue, f, wait_for):
+            ia, ib = self.nlm_in
+            return self.nlm_passes(queue, f.buffers[ia], f.buffers[ib], f.buffers["nlm_planes"],
+                                   f.buffers["na"], f.buffers["nb"], f.width, f.height, f.spp,
+                                   wait_for)
+        return run
+
     def _guide_blend_step(self):
         """The safeguard's estimator with the refined halves in place of box's: per pixel
         the weight of the method's image against the refinement, then each half blended
@@ -373,6 +394,8 @@ class Safeguarded(Pipeline):
         if self.guided:
             d["guided"] = self.guided
             d["guide_blend"] = self.guide_blend
+        if self.nlm:
+            d["nlm"] = self.nlm
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True

@@ -1,0 +1,154 @@
+/* nlm.cl: dual-buffer non-local means on the safeguard's two halves' images (Rousselle, Knaus
+ * and Zwicker 2012); clrecon/methods/nlm.py has the derivation and the NumPy reference.
+ *
+ *   nlm_planes  per padded pixel: the halves' images A and B and v, the 3x3 (clipped) mean of
+ *               their squared difference (mean over RGB), as planes with the image's edge
+ *               replicated NLM_PAD pixels (and a lane group) around it: every load of the
+ *               filter is then in bounds, and a clamped coordinate is a plain offset
+ *   nlm_filter  per pixel p and half h: the half's image u = A or B averaged over the
+ *               (2 NR + 1)^2 pixels q around p with the weights that the *other* half g
+ *               gives: w = exp(-max(0, D2)), D2 the mean over the 3x3 patch (clipped to the
+ *               image) of t(s, s + q - p),
+ *                 t(s, s') = (|g_s - g_s'|^2 - (v_s + min(v_s, v_s'))) / (k^2 (v_s + v_s'))
+ *               (mean over RGB; v the guide half's variance, fg times the plane v); where
+ *               v_s + v_s' = 0, t is 0 for equal colours and +inf for others; a NaN
+ *               distance weighs 0 and p itself weighs 1. Coordinates off the image clamp.
+ * Arguments: planes: ua, ub (H, W, 3), planes (NLM_PLANES planes of `ps` floats: A's RGB,
+ * B's RGB, v; padded rows of `pw` floats), W, H; filter: planes, na, nb (H, W, 3), W, H, pw,
+ * ps, fa, fb (var(A) = fa v, var(B) = fb v), k2 = k^2.
+ * Launch: planes (pw, ph); filter (ceil(W / 8), H, 2) (dim 2: the half), 1 x 1 x 1 groups.
+ * A work-item takes 8 pixels of a row as the lanes of a float8. (Work-items of 2-8 rows
+ * that carried the patch's rows from one output row to the next computed a third of the
+ * terms and took 1.4-4x as long on PoCL: their accumulators spilled.)
+ * Compile-time: NR (search radius, 1..10).
+ */
+#ifndef NR
+#define NR 5
+#endif
+/* pad around the image: the search radius and the patch's pixel */
+#define NLM_PAD (NR + 1)
+#define NLM_PLANES 7
+#define NLM_OFFSETS ((2 * NR + 1) * (2 * NR + 1))
+#ifndef NLM_ROWS
+#define NLM_ROWS 64
+#endif
+
+__kernel void nlm_planes(__global const float *restrict ua, __global const float *restrict ub,
+                         __global float *restrict planes, const int W, const int H,
+                         const int pw, const int ph, const int ps)
+{
+    const int px = get_global_id(0), py = get_global_id(1);
+    if (px >= pw || py >= ph)
+        return;
+    const int x = clamp(px - NLM_PAD, 0, W - 1), y = clamp(py - NLM_PAD, 0, H - 1);
+    const size_t i = (size_t)y * W + x;
+    const float3 a = vload3(i, ua), b = vload3(i, ub);
+    float v = 0.0f;
+    int n = 0;
+    for (int dy = max(y - 1, 0); dy <= min(y + 1, H - 1); ++dy)
+        for (int dx = max(x - 1, 0); dx <= min(x + 1, W - 1); ++dx) {
+            const size_t j = (size_t)dy * W + dx;
+            const float3 d = vload3(j, ua) - vload3(j, ub);
+            v += (d.x * d.x + d.y * d.y + d.z * d.z) * (1.0f / 3.0f);
+            ++n;
+        }
+    const size_t o = (size_t)py * pw + px;
+    planes[o] = a.x;
+    planes[o + ps] = a.y;
+    planes[o + 2 * (size_t)ps] = a.z;
+    planes[o + 3 * (size_t)ps] = b.x;
+    planes[o + 4 * (size_t)ps] = b.y;
+    planes[o + 5 * (size_t)ps] = b.z;
+    planes[o + 6 * (size_t)ps] = v / (float)n;
+}
+
+/* t of the lanes' pixels s (plane offset os) against s' = s + (ox, oy) (offset oq) */
+inline float8 nlm_term(__global const float *g0, __global const float *g1,
+                       __global const float *g2, __global const float *v, const size_t os,
+                       const size_t oq, const float fg, const float k2)
+{
+    const float8 d0 = vload8(0, g0 + os) - vload8(0, g0 + oq);
+    const float8 d1 = vload8(0, g1 + os) - vload8(0, g1 + oq);
+    const float8 d2 = vload8(0, g2 + os) - vload8(0, g2 + oq);
+    const float8 dd = (d0 * d0 + d1 * d1 + d2 * d2) * (1.0f / 3.0f);
+    const float8 vs = fg * vload8(0, v + os), vq = fg * vload8(0, v + oq);
+    const float8 den = k2 * (vs + vq);
+    const float8 t = (dd - (vs + fmin(vs, vq))) / den;
+    return select(t, select((float8)(0.0f), (float8)(INFINITY), dd > 0.0f), den == 0.0f);
+}
+
+__kernel void nlm_filter(__global const float *restrict planes, __global float *restrict na,
+                         __global float *restrict nb, const int W, const int H, const int pw,
+                         const int ps, const float fa, const float fb, const float k2)
+{
+    const int x0 = 8 * get_global_id(0), ya = NLM_ROWS * get_global_id(1);
+    const int h = get_global_id(2);
+    if (x0 >= W || ya >= H)
+        return;
+    const int yb = min(ya + NLM_ROWS, H);
+    /* u: the half filtered; g, v: the other half's image and variance */
+    __global const float *u = planes + (size_t)(h ? 3 : 0) * ps;
+    __global const float *g = planes + (size_t)(h ? 0 : 3) * ps;
+    __global const float *v = planes + (size_t)6 * ps;
+    const float fg = h ? fa : fb;
+    const int8 xs = x0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    /* the patch's columns x - 1 and x + 1 where they lie in the image (a vector compare is
+     * -1 where true), and its width */
+    const int8 ml = xs - 1 >= 0, mr = xs + 1 < W;
+    const float8 ncol = 1.0f - convert_float8(ml) - convert_float8(mr);
+    /* per offset, the patch-row sums of the two rows above the one computed */
+    float8 h0[NLM_OFFSETS], h1[NLM_OFFSETS];
+    for (int r = ya - 1; r <= yb; ++r) {
+        const int row_in = r >= 0 && r < H;
+        const int yo = r - 1;  /* the output row whose patch this row completes */
+        const int out_row = yo >= ya;
+        float inv_nrow = 0.0f;
+        if (out_row)
+            inv_nrow = 1.0f / (float)(1 + (yo - 1 >= 0) + (yo + 1 < H));
+        const float8 inv_n = inv_nrow / ncol;
+        const size_t os = (size_t)(r + NLM_PAD) * pw + (size_t)(x0 + NLM_PAD);
+        const size_t oo = os - pw;  /* the output row's */
+        float8 ar = (float8)(0.0f), ag = ar, ab = ar, ws = ar;
+        int k = 0;
+        for (int oy = -NR; oy <= NR; ++oy) {
+            for (int ox = -NR; ox <= NR; ++ox, ++k) {
+                const long dq = (long)oy * pw + ox;
+                float8 hr = (float8)(0.0f);
+                if (row_in) {
+                    /* the lanes' left and right neighbours' terms, and the lanes' own from
+                     * them (lanes 0-6: the left ones' lanes 1-7; lane 7: the right ones'
+                     * lane 6): two terms a lane, not three */
+                    const float8 tl = nlm_term(g, g + ps, g + 2 * (size_t)ps, v, os - 1,
+                                               os - 1 + dq, fg, k2);
+                    const float8 tr = nlm_term(g, g + ps, g + 2 * (size_t)ps, v, os + 1,
+                                               os + 1 + dq, fg, k2);
+                    const float8 tc = (float8)(tl.s1234, tl.s567, tr.s6);
+                    /* a patch column off the image adds nothing (0 x inf would be NaN) */
+                    hr = tc + select((float8)(0.0f), tl, ml) + select((float8)(0.0f), tr, mr);
+                }
+                if (out_row) {
+                    const float8 d2 = (h0[k] + h1[k] + hr) * inv_n;
+                    float8 w = select(exp(-fmax(d2, 0.0f)), (float8)(0.0f), isnan(d2));
+                    if (ox == 0 && oy == 0)
+                        w = (float8)(1.0f);
+                    ar += w * vload8(0, u + oo + dq);
+                    ag += w * vload8(0, u + ps + oo + dq);
+                    ab += w * vload8(0, u + 2 * (size_t)ps + oo + dq);
+                    ws += w;
+                }
+                h0[k] = h1[k];
+                h1[k] = hr;
+            }
+        }
+        if (out_row && yo < H) {
+            __global float *out = h ? nb : na;
+            float r8[8], g8[8], b8[8], w8[8];
+            vstore8(ar, 0, r8);
+            vstore8(ag, 0, g8);
+            vstore8(ab, 0, b8);
+            vstore8(ws, 0, w8);
+            for (int j = 0; j < 8 && x0 + j < W; ++j)
+                vstore3((float3)(r8[j], g8[j], b8[j]) / w8[j], (size_t)yo * W + x0 + j, out);
+        }
+    }
+}
