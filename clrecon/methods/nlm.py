@@ -30,8 +30,8 @@ stays consistent as samples grow (where the filter's averaging is a bias, the bl
 toward box).
 
 Constants: ``k = 0.45`` and the 3x3 patch are Rousselle et al.'s; ``R`` is the knob (the
-trade's setting uses 5: the cheapest of the radii measured, 3, 4, 5 and 7, that kept the
-gains; ``docs/measurements/nlm-pocl.md``). Range: the kernel squares colour differences
+trade lists 3 and 5: 5 the cheapest of the radii measured, 3, 4, 5 and 7, that kept the
+gains on every scene, 3 at less than half its cost; ``docs/measurements/nlm-pocl.md``). Range: the kernel squares colour differences
 in float32, so its weights are those of the float64 reference for colours between about
 1e-15 and 1e15 (tested); a difference whose square underflows counts as none (equal
 pixels), one whose square overflows as infinitely far (weight 0: the pixel keeps its own
