@@ -27,7 +27,6 @@ import statistics
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -35,54 +34,11 @@ from clrecon.api import METHODS
 from clrecon.bench.table import Progress, _check_variants, frame_sources
 from clrecon.bench.timing import OidnRun, PipelineRun, duration_text, paired_rounds
 from clrecon.bench.trade_report import markdown, save_crops, verdicts, write_outputs
+from clrecon.bench.trade_settings import TRADES as TRADES  # re-exported: the settings
 from clrecon.core.device import Device, DeviceSpec, get_device
 from clrecon.io import load_image, load_samples, save_image
 from clrecon.metrics import evaluate
 from clrecon.scenes import get_scene, render_reference, render_samples
-
-#: per method, the settings that trade speed for accuracy (label, knobs); a method that is
-#: not registered is skipped, a knob a method does not take is an error. ``safeguard=False``
-#: is the paper's method alone; ``+safeguard`` the method's default
-#: (:mod:`clrecon.methods.safeguard`); ``guided`` the method's halves refined by their box
-#: images (:mod:`clrecon.methods.guided`), ``nlm`` the halves further averaged by dual-buffer
-#: non-local means (:mod:`clrecon.methods.nlm`)
-TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
-    "box": (("box", {}),),
-    "sweep": (
-        ("sweep dof-layers", {"dof_layers": True, "safeguard": False}),
-        ("sweep 2-scale", {"scales": 2, "safeguard": False}),
-        ("sweep 2-scale ^1.3", {"scales": 2, "exponent": 1.3, "safeguard": False}),
-        ("sweep 4-scale", {"scales": 4, "safeguard": False}),
-        ("sweep 2-scale +safeguard", {"scales": 2}),
-        ("sweep guided", {"scales": 2, "guided": 2, "safeguard": False}),
-    ),
-    "layered": (
-        ("layered sheared", {"filter": "sheared", "safeguard": False}),
-        ("layered mip", {"filter": "mip", "safeguard": False}),
-        ("layered lrdm", {"mode": "lrdm", "safeguard": False}),
-        ("layered full stats", {"stats_stride": 1, "safeguard": False}),
-        ("layered no merging", {"merge_threshold": -1.0, "safeguard": False}),
-        ("layered tile 16", {"tile": 16, "safeguard": False}),
-        ("layered sheared +safeguard", {"filter": "sheared"}),
-        ("layered guided", {"filter": "sheared", "guided": 2, "safeguard": False}),
-        ("layered guided no blend", {"filter": "sheared", "guided": 2, "guide_blend": False,
-                                     "safeguard": False}),
-    ),
-    "splat": (
-        ("splat", {"safeguard": False}),
-        ("splat mip 4", {"mip_radius": 4.0, "safeguard": False}),
-        ("splat mip 12", {"mip_radius": 12.0, "safeguard": False}),
-        ("splat 2 layers", {"layers": 2, "safeguard": False}),
-        ("splat paper", {"mip_radius": 0, "safeguard": False}),
-        ("splat paper f5", {"mip_radius": 0, "pyramid": "f5", "safeguard": False}),
-        ("splat paper dense", {"dense": True, "safeguard": False}),
-        ("splat +safeguard", {}),
-        ("splat guided", {"guided": 2, "safeguard": False}),
-        ("splat guided +safeguard", {"guided": 2}),
-        ("splat guided nlm3 +safeguard", {"guided": 2, "nlm": 3}),
-        ("splat guided nlm +safeguard", {"guided": 2, "nlm": 5}),
-    ),
-}
 
 #: the external baseline: pyoidn quality modes
 OIDN_QUALITIES = ("fast", "high")
@@ -98,7 +54,8 @@ def trade_variants(methods: Sequence[str] | None = None,
         if m not in METHODS:
             raise ValueError(f"methods: unknown {m!r}; available: {sorted(METHODS)}")
         if m not in TRADES:
-            raise ValueError(f"methods: {m!r} has no trade settings in clrecon.bench.trade")
+            raise ValueError(f"methods: {m!r} has no trade settings in "
+                             f"clrecon.bench.trade_settings")
     if "box" not in methods:
         methods = ["box", *methods]
     every = [(lab, m, k) for m in methods for lab, k in TRADES[m]]

@@ -55,6 +55,16 @@ def check_int(name: str, value, lo: int | None = None, hi: int | None = None,
     return v
 
 
+def check_radius(name: str, value, radii: range, what: str = "radius") -> int:
+    """``value`` as a radius in ``radii`` or 0 (off): the guided refinement's and the
+    non-local means' knobs; ``ValueError`` otherwise (a bool or a non-integer included)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not (
+            value == 0 or value in radii):
+        raise ValueError(f"{name}: the {what} must be an integer 0 (off) or "
+                         f"{radii.start}..{radii.stop - 1}, got {value!r}")
+    return int(value)
+
+
 def check_float(name: str, value, lo: float | None = None, hi: float | None = None,
                 lo_open: bool = False, hi_open: bool = False, allow_inf: bool = False,
                 what: str = "") -> float:

@@ -49,7 +49,9 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from clrecon.core import knobs
 from clrecon.core.device import cpu_context, get_kernel
+from clrecon.core.plan import Step
 from clrecon.methods.safeguard_passes import halves
 from clrecon.methods.safeguard_reference import MODE_BLEND, reference_of_halves
 
@@ -74,11 +76,7 @@ def plane_pitch(width: int, height: int) -> int:
 
 def check_radius(r) -> int:
     """``r`` as a radius the refinement takes (0: off); ``ValueError`` otherwise."""
-    if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or not (
-            r == 0 or r in RADII):
-        raise ValueError(f"guided: the window radius must be an integer 0 (off) or "
-                         f"{RADII.start}..{RADII.stop - 1}, got {r!r}")
-    return int(r)
+    return knobs.check_radius("guided", r, RADII, "window radius")
 
 
 # -- NumPy reference -------------------------------------------------------------------------
@@ -181,6 +179,15 @@ class GuidedPasses:
         ev2 = cl.enqueue_nd_range_kernel(queue, self.apply, (-(-w // self.vw), h, 2), None,
                                          wait_for=[ev1])
         return [("guided_means", ev0), ("guided_fit", ev1), ("guided_apply", ev2)]
+
+    def step(self) -> Step:
+        """The plan's step: the halves' images ``ma``, ``mb`` refined into ``qa``, ``qb``
+        with the frame's colours (its buffers: :meth:`temporaries`)."""
+        def run(queue, f, wait_for):
+            b = f.buffers
+            return self(queue, b["color"], b["ma"], b["mb"], b["guided_planes"],
+                        b["guided_coef"], b["qa"], b["qb"], f.width, f.height, f.spp, wait_for)
+        return Step("guided", ("color", "ma", "mb"), ("qa", "qb"), run)
 
 
 def chain_reference(color: np.ndarray, ga: np.ndarray, gb: np.ndarray, r: int,

@@ -31,18 +31,21 @@ toward box).
 
 Constants: ``k = 0.45`` and the 3x3 patch are Rousselle et al.'s; ``R`` is the knob (the
 trade lists 3 and 5: 5 the cheapest of the radii measured, 3, 4, 5 and 7, that kept the
-gains on every scene, 3 at less than half its cost; ``docs/measurements/nlm-pocl.md``). Range: the kernel squares colour differences
-in float32, so its weights are those of the float64 reference for colours between about
-1e-15 and 1e15 (tested); a difference whose square underflows counts as none (equal
-pixels), one whose square overflows as infinitely far (weight 0: the pixel keeps its own
-value), and the image stays finite at any valid colour.
+gains on every scene, 3 at less than half its cost; ``docs/measurements/nlm-pocl.md``).
+Range: the kernel squares colour differences in float32, so its weights are those of the
+float64 reference for colours between about 1e-15 and 1e15 (tested); a difference whose
+square underflows counts as none (equal pixels), one whose square overflows as infinitely
+far (weight 0: the pixel keeps its own value), and the image stays finite at any valid
+colour.
 """
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
 
+from clrecon.core import knobs
 from clrecon.core.device import get_kernel
+from clrecon.core.plan import Step
 from clrecon.methods.safeguard_passes import halves
 
 #: Rousselle et al. 2012's damping of the noise in the distance
@@ -57,11 +60,7 @@ ROWS = 64
 
 def check_radius(r) -> int:
     """``r`` as a search radius the filter takes (0: off); ``ValueError`` otherwise."""
-    if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or not (
-            r == 0 or r in RADII):
-        raise ValueError(f"nlm: the search radius must be an integer 0 (off) or "
-                         f"{RADII.start}..{RADII.stop - 1}, got {r!r}")
-    return int(r)
+    return knobs.check_radius("nlm", r, RADII, "search radius")
 
 
 def padded(width: int, height: int, r: int) -> tuple[int, int, int]:
@@ -154,7 +153,17 @@ class NlmPasses:
         self.filter.set_args(planes, na, nb, np.int32(w), np.int32(h), np.int32(pw),
                              np.int32(ps), np.float32(hb / spp), np.float32(ha / spp),
                              np.float32(K * K))
-        # a work-item a group: PoCL's own group shapes ran 5-10% slower
-        ev1 = cl.enqueue_nd_range_kernel(queue, self.filter, (-(-w // 8), -(-h // ROWS), 2), (1, 1, 1),
-                                         wait_for=[ev0])
+        # independent work-items, one a group (PoCL's own group shape: the same time, 119
+        # against 122 ms at 512x512)
+        ev1 = cl.enqueue_nd_range_kernel(queue, self.filter, (-(-w // 8), -(-h // ROWS), 2),
+                                         (1, 1, 1), wait_for=[ev0])
         return [("nlm", ev0), ("nlm", ev1)]
+
+    def step(self, inputs: tuple[str, str]) -> Step:
+        """The plan's step: the halves' images named ``inputs`` filtered into ``na``, ``nb``
+        (its buffers: :meth:`temporaries`)."""
+        def run(queue, f, wait_for):
+            b = f.buffers
+            return self(queue, b[inputs[0]], b[inputs[1]], b["nlm_planes"], b["na"], b["nb"],
+                        f.width, f.height, f.spp, wait_for)
+        return Step("nlm", tuple(inputs), ("na", "nb"), run)

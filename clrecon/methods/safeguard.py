@@ -85,9 +85,8 @@ from clrecon.core.errors import DeviceMemoryError
 from clrecon.core.pipeline import DeviceSamples, Pipeline, make_method
 from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
+from clrecon.methods import nlm as nl
 from clrecon.methods.guided import GuidedPasses, check_radius
-from clrecon.methods.nlm import NlmPasses
-from clrecon.methods.nlm import check_radius as check_nlm_radius
 from clrecon.methods.safeguard_passes import SafeguardPasses, halves, measures_convergence
 
 # the NumPy reference and the blend kernel's modes live in their own module; re-exported
@@ -151,7 +150,7 @@ class Safeguarded(Pipeline):
         self.guided = 0 if is_box else check_radius(guided)
         # nlm: the halves' images (the method's or the refined ones) averaged further with
         # dual-buffer non-local means (clrecon.methods.nlm)
-        self.nlm = 0 if is_box else check_nlm_radius(nlm)
+        self.nlm = 0 if is_box else nl.check_radius(nlm)
         for knob, on in (("guided", self.guided), ("nlm", self.nlm)):
             if on and not self.full.halves_mean:
                 raise ValueError(f"{knob}: {method}'s image is not the mean of its halves' "
@@ -215,19 +214,17 @@ class Safeguarded(Pipeline):
         self.half_images = ("ba", "bb") if self.guide_blend else \
             ("qa", "qb") if self.guided else ("ma", "mb")
         if self.guided:
-            self.guide_passes = GuidedPasses(context, self.guided)
-            temps |= self.guide_passes.temporaries(info.width, info.height)
-            steps.append(Step("guided", ("color", "ma", "mb"), ("qa", "qb"),
-                              self._guided_step()))
+            passes = GuidedPasses(context, self.guided)
+            temps |= passes.temporaries(info.width, info.height)
+            steps.append(passes.step())
         if self.guide_blend:
             temps |= {"ba": npx * 12, "bb": npx * 12}
             steps.append(Step("guided_blend", ("qa", "qb", "ma", "mb"), ("ba", "bb"),
                               self._guide_blend_step()))
         if self.nlm:
-            self.nlm_passes = NlmPasses(context, self.nlm)
-            temps |= self.nlm_passes.temporaries(info.width, info.height)
-            self.nlm_in = self.half_images
-            steps.append(Step("nlm", self.nlm_in, ("na", "nb"), self._nlm_step()))
+            passes = nl.NlmPasses(context, self.nlm)
+            temps |= passes.temporaries(info.width, info.height)
+            steps.append(passes.step(self.half_images))
             self.half_images = ("na", "nb")
         images = () if is_box else self.half_images if self.halves_mean else \
             ("m",) + self.half_images
@@ -316,22 +313,6 @@ class Safeguarded(Pipeline):
                     pipe(queue, ds, f.buffers[out], wait_for=wait_for)
                 evs.extend((f"{name} (halves)", ev) for name, ev in pipe.events)
             return evs
-        return run
-
-    def _guided_step(self):
-        def run(queue, f, wait_for):
-            b = f.buffers
-            return self.guide_passes(queue, b["color"], b["ma"], b["mb"], b["guided_planes"],
-                                     b["guided_coef"], b["qa"], b["qb"], f.width, f.height,
-                                     f.spp, wait_for)
-        return run
-
-    def _nlm_step(self):
-        def run(queue, f, wait_for):
-            ia, ib = self.nlm_in
-            return self.nlm_passes(queue, f.buffers[ia], f.buffers[ib], f.buffers["nlm_planes"],
-                                   f.buffers["na"], f.buffers["nb"], f.width, f.height, f.spp,
-                                   wait_for)
         return run
 
     def _guide_blend_step(self):

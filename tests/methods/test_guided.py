@@ -8,6 +8,7 @@ import pyopencl as cl
 import pytest
 from conftest import assert_close, trusted_reference
 from layered_frames import frame
+from pipeline_run import read_buffer, run_plan
 
 from clrecon.api import make_pipeline, run
 from clrecon.core.pipeline import DeviceSamples
@@ -20,12 +21,6 @@ from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_samples
 
 
-def _read(pipe, queue, name, shape):
-    a = np.empty(shape, np.float32)
-    cl.enqueue_copy(queue, a, pipe.buffer(name))
-    return a
-
-
 @pytest.mark.parametrize("method", ["layered", "sweep", "splat"])
 @pytest.mark.parametrize("safeguard", [False, True])
 @pytest.mark.parametrize("guide_blend", [False, True])
@@ -35,29 +30,23 @@ def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend
     halves' images (then blended toward them: guide_blend); without the safeguard the image
     is the halves' mean (from 16 spp the safeguard's variances scaled by the quarters)."""
     buf = frame(rng, h=24, w=26, s=spp)
-    ctx, q = device.context, device.queue
-    ds = DeviceSamples.wrap(ctx, buf, buf.arrays().keys())
-    pipe = make_pipeline(method, ctx, ds.inspect(q), guided=2, safeguard=safeguard,
-                         guide_blend=guide_blend)
-    out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
-    pipe(q, ds, out)
-    q.finish()
+    q = device.queue
+    pipe, image = run_plan(device, buf, method, guided=2, safeguard=safeguard,
+                           guide_blend=guide_blend)
     shape = (buf.height, buf.width, 3)
-    ma, mb = _read(pipe, q, "ma", shape), _read(pipe, q, "mb", shape)
-    qa, qb = _read(pipe, q, "qa", shape), _read(pipe, q, "qb", shape)
+    ma, mb = read_buffer(pipe, q, "ma", shape), read_buffer(pipe, q, "mb", shape)
+    qa, qb = read_buffer(pipe, q, "qa", shape), read_buffer(pipe, q, "qb", shape)
     ra, rb = gd.reference(buf.color, ma, mb, 2)
     tol = 1e-4 * max(1.0, float(np.abs(ra).max()))
     assert_close(qa, ra, rtol=1e-4, atol=tol, what="refined half A")
     assert_close(qb, rb, rtol=1e-4, atol=tol, what="refined half B")
     if guide_blend:
         ra, rb = gd.chain_reference(buf.color, ma, mb, 2)
-        ba, bb = _read(pipe, q, "ba", shape), _read(pipe, q, "bb", shape)
+        ba, bb = read_buffer(pipe, q, "ba", shape), read_buffer(pipe, q, "bb", shape)
         assert_close(ba, ra, rtol=1e-4, atol=tol, what="blended half A")
         assert_close(bb, rb, rtol=1e-4, atol=tol, what="blended half B")
         # the blend does something on this frame: some pixels keep the method's image more
         assert np.abs(ba - qa).max() > 1e-3
-    image = np.empty(shape, np.float32)
-    cl.enqueue_copy(q, image, out)
     assert np.isfinite(image).all()
     ha = buf.spp // 2
     if not safeguard:

@@ -5,13 +5,12 @@ reference."""
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 import pytest
 from conftest import assert_close, trusted_reference
 from layered_frames import frame
+from pipeline_run import read_buffer, run_plan
 
-from clrecon.api import make_pipeline, run
-from clrecon.core.pipeline import DeviceSamples
+from clrecon.api import run
 from clrecon.methods import nlm
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard import reference_of_halves
@@ -19,12 +18,6 @@ from clrecon.methods.safeguard_reference import variance_scale
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_samples
-
-
-def _read(pipe, queue, name, shape):
-    a = np.empty(shape, np.float32)
-    cl.enqueue_copy(queue, a, pipe.buffer(name))
-    return a
 
 
 @pytest.mark.parametrize("method", ["layered", "sweep", "splat"])
@@ -36,23 +29,16 @@ def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp
     had before it (the method's, or the guided chain's); the image is their mean without
     the safeguard and the safeguard's blend with it."""
     buf = frame(rng, h=22, w=27, s=spp)
-    ctx, q = device.context, device.queue
-    ds = DeviceSamples.wrap(ctx, buf, buf.arrays().keys())
-    pipe = make_pipeline(method, ctx, ds.inspect(q), guided=guided, nlm=3,
-                         safeguard=safeguard)
-    out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
-    pipe(q, ds, out)
-    q.finish()
+    q = device.queue
+    pipe, image = run_plan(device, buf, method, guided=guided, nlm=3, safeguard=safeguard)
     shape = (buf.height, buf.width, 3)
     ia, ib = ("ba", "bb") if guided else ("ma", "mb")
-    ua, ub = _read(pipe, q, ia, shape), _read(pipe, q, ib, shape)
+    ua, ub = read_buffer(pipe, q, ia, shape), read_buffer(pipe, q, ib, shape)
     ra, rb = nlm.reference(ua, ub, buf.spp, 3)
     tol = 1e-4 * max(1.0, float(np.abs(ra).max()))
-    assert_close(_read(pipe, q, "na", shape), ra, rtol=1e-4, atol=tol, what="filtered A")
-    assert_close(_read(pipe, q, "nb", shape), rb, rtol=1e-4, atol=tol, what="filtered B")
+    assert_close(read_buffer(pipe, q, "na", shape), ra, rtol=1e-4, atol=tol, what="filtered A")
+    assert_close(read_buffer(pipe, q, "nb", shape), rb, rtol=1e-4, atol=tol, what="filtered B")
     assert np.abs(ra - ua).max() > 1e-3  # it does something on this frame
-    image = np.empty(shape, np.float32)
-    cl.enqueue_copy(q, image, out)
     assert np.isfinite(image).all()
     ha = buf.spp // 2
     if not safeguard:
