@@ -5,12 +5,14 @@ reference."""
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pytest
 from conftest import assert_close, trusted_reference
 from layered_frames import frame
 from pipeline_run import read_buffer, run_plan
 
 from clrecon.api import run
+from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import nlm
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard import reference_of_halves
@@ -86,3 +88,23 @@ def test_filter_gains_on_a_builtin_scene(device):
     without = psnr(run(buf, method="splat", device=device, guided=2).image, ref)
     with_nlm = psnr(run(buf, method="splat", device=device, guided=2, nlm=5).image, ref)
     assert with_nlm > without + 0.5, (without, with_nlm)
+
+
+def test_frames_it_was_not_built_for(device, rng):
+    """Reused frame after frame: a frame of another shape is refused with the bound named;
+    with grow=True the pipeline re-plans, filter included, and gives the image a pipeline
+    made for that frame gives."""
+    a = frame(rng, h=16, w=18, s=4)
+    b = frame(rng, h=21, w=23, s=6)
+    pipe, _ = run_plan(device, a, "splat", nlm=2)
+    with pytest.raises(ValueError, match="width"):
+        pipe(device.queue, DeviceSamples.wrap(device.context, b, b.arrays().keys()),
+             cl.Buffer(device.context, cl.mem_flags.READ_WRITE, b.height * b.width * 12))
+    grown, _ = run_plan(device, a, "splat", nlm=2, grow=True)
+    out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, b.height * b.width * 12)
+    grown(device.queue, DeviceSamples.wrap(device.context, b, b.arrays().keys()), out)
+    img = np.empty((b.height, b.width, 3), np.float32)
+    cl.enqueue_copy(device.queue, img, out)
+    assert grown.describe()["nlm"] == 2
+    assert_close(img, run(b, method="splat", device=device, nlm=2).image, rtol=1e-5,
+                 atol=1e-6, what="grown image")
