@@ -31,6 +31,9 @@ SETTINGS = [
     ("sweep default (+safeguard)", "sweep", {}),
     ("layered default (+safeguard)", "layered", {}),
     ("splat default (+safeguard)", "splat", {}),
+    # the quality end of the trade: the guided refinement, and non-local means on its halves
+    ("splat guided (+safeguard)", "splat", {"guided": 2}),
+    ("splat guided nlm3 (+safeguard)", "splat", {"guided": 2, "nlm": 3}),
 ]
 #: run once (a round of it takes ~20 s at 720p): the paper's plan, for the before/after
 SLOW = [("splat paper (mip_radius=0)", "splat", {"mip_radius": 0, "safeguard": False})]
