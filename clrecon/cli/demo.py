@@ -143,15 +143,20 @@ def _method(buf, method: str, device):
     return res.image, res.device_ms, seconds * 1e3, res.device
 
 
-#: the demo's spelling of the guided refinement: ``METHOD+guided`` (clrecon.methods.guided)
+#: the demo's spellings of the steps inside the safeguard, as suffixes of a method:
+#: ``METHOD+guided`` (clrecon.methods.guided), ``METHOD+guided+nlm`` (clrecon.methods.nlm)
 GUIDED_SUFFIX, GUIDED_RADIUS = "+guided", 2
+NLM_SUFFIX, NLM_RADIUS = "+nlm", 3
 
 
 def _spec(entry: str) -> tuple[str, dict]:
     """A ``--methods`` entry as (method, knobs)."""
+    knobs = {}
+    if entry.endswith(NLM_SUFFIX):
+        entry, knobs = entry[:-len(NLM_SUFFIX)], {"nlm": NLM_RADIUS}
     if entry.endswith(GUIDED_SUFFIX):
-        return entry[:-len(GUIDED_SUFFIX)], {"guided": GUIDED_RADIUS}
-    return entry, {}
+        entry, knobs = entry[:-len(GUIDED_SUFFIX)], {"guided": GUIDED_RADIUS, **knobs}
+    return entry, knobs
 
 
 def _row(args, buf, ref, method: str, out: Path):
@@ -179,7 +184,7 @@ def cmd_demo(args) -> int:
             check_knob_names(name, knobs, "--methods: ")
             if knobs and name == "box":
                 raise ValueError(f"--methods: {method}: box has no image of its own to guide "
-                                 f"the regression")
+                                 f"the regression or to filter")
     if not methods:
         raise ValueError(f"--methods: no method in {args.methods!r}")
     check_output_dir("-o", args.output)
@@ -202,7 +207,7 @@ def cmd_demo(args) -> int:
           f"({w * h * args.spp / t_render / 1e6:.1f} M samples/s); {ref_note}")
     print(f"reference device: {ref_dev.info.label} (references never come from the device "
           f"under test)")
-    device = None
+    device, col = None, max(12, *(len(m) for m in methods))
     for method in methods:
         stage(args, f"running {method} on scene {args.scene}")
         (device_ms, total_ms, label, q), seconds = timed(
@@ -210,7 +215,7 @@ def cmd_demo(args) -> int:
         device = label or device
         stage_log(f"{method}: {seconds:.1f} s (program build, warm-up, timed run, quality, "
                   f"images)")
-        print(f"{method:12s} device {device_ms:8.2f} ms (total {total_ms:7.1f} ms)  "
+        print(f"{method:{col}s} device {device_ms:8.2f} ms (total {total_ms:7.1f} ms)  "
               f"PSNR {q['psnr']:.2f} dB  SSIM {q['ssim']:.4f}  FLIP {q['flip']:.4f}")
     _print_notes(methods, ref_spp, device, out)
     return 0
@@ -225,10 +230,13 @@ def _print_notes(methods, ref_spp: int, device, out: Path) -> None:
     if "oidn" in methods:
         print(OIDN_NOTE)
     for m in methods:
-        if m.endswith(GUIDED_SUFFIX):
-            print(f"{m}: {m[:-len(GUIDED_SUFFIX)]} with the guided refinement (guided="
-                  f"{GUIDED_RADIUS}: each half's box image regressed window by window on the "
-                  f"method's image of that half, then the safeguard; README: The guided "
-                  f"refinement)")
+        name, knobs = _spec(m) if m != "oidn" else (m, {})
+        steps = ([f"the guided refinement (guided={GUIDED_RADIUS}: each half's box image "
+                  f"regressed window by window on the method's image of that half; README: "
+                  f"The guided refinement)"] if "guided" in knobs else []) + (
+            [f"non-local means on each half (nlm={NLM_RADIUS}: weights from the other half; "
+             f"README: Non-local means on the halves)"] if "nlm" in knobs else [])
+        if steps:
+            print(f"{m}: {name} with " + ", then ".join(steps) + ", then the safeguard")
     print(f"device: {device}")
     print(f"images in {out}/")

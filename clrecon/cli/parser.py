@@ -117,9 +117,12 @@ def _demo(sub) -> None:
     sp.add_argument("--spp", type=int, default=8, help="samples per pixel of the input")
     sp.add_argument("--ref-spp", type=int, default=None, help="default: the scene's")
     sp.add_argument("--seed", type=int, default=0, help="of the input (reference: seed + 1)")
-    sp.add_argument("--methods", default="box,oidn,sweep,layered,splat,splat+guided",
+    sp.add_argument("--methods", default="box,oidn,sweep,layered,splat,splat+guided,"
+                    "splat+guided+nlm",
                     help="comma-separated methods to run (oidn: box + Open Image Denoise; "
-                    "METHOD+guided: the method with the guided refinement, guided=2)")
+                    "METHOD+guided: the method with the guided refinement, guided=2; "
+                    "METHOD+guided+nlm, METHOD+nlm: with non-local means on the halves, "
+                    "nlm=3)")
     _output_folder(sp, "out", "folder of the images")
     device_arg(sp)
     sp.set_defaults(fn=cmd_demo)

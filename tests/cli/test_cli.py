@@ -57,8 +57,10 @@ def test_demo_writes_images(tmp_path, capsys):
     assert "PSNR" in out and "M samples/s" in out
     assert "box" in out and "sweep" in out and "splat+guided" in out
     assert "with the guided refinement" in out
+    assert "splat+guided+nlm" in out and "then non-local means on each half" in out
     for name in ("spheres_reference.png", "spheres_box.png", "spheres_box.exr",
-                 "spheres_sweep.png", "spheres_splat+guided.png"):
+                 "spheres_sweep.png", "spheres_splat+guided.png",
+                 "spheres_splat+guided+nlm.png"):
         assert (tmp_path / name).is_file()
 
 

@@ -281,3 +281,7 @@ def test_demo_bad_method_fails_before_rendering(tmp_path, monkeypatch, capsys):
     line = _one_line(capsys)
     assert "box+guided" in line and "guide" in line, line
     assert not (tmp_path / "d").exists()
+    assert main(["demo", "--methods", "box+nlm", "-o", str(tmp_path / "d")]) == 2
+    line = _one_line(capsys)
+    assert "box+nlm" in line and "filter" in line, line
+    assert not (tmp_path / "d").exists()
