@@ -43,6 +43,7 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
         ("splat +safeguard", {}),
         ("splat guided", {"guided": 2, "safeguard": False}),
         ("splat guided +safeguard", {"guided": 2}),
+        ("splat guided nlm3", {"guided": 2, "nlm": 3, "safeguard": False}),
         ("splat guided nlm3 +safeguard", {"guided": 2, "nlm": 3}),
         ("splat guided nlm +safeguard", {"guided": 2, "nlm": 5}),
     ),
