@@ -8,6 +8,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from conftest import assert_close, trusted_reference
+from extremes import CASES, check_output, make_frame
 from layered_frames import frame
 from pipeline_run import read_buffer, run_plan
 
@@ -108,3 +109,18 @@ def test_frames_it_was_not_built_for(device, rng):
     assert grown.describe()["nlm"] == 2
     assert_close(img, run(b, method="splat", device=device, nlm=2).image, rtol=1e-5,
                  atol=1e-6, what="grown image")
+
+
+@pytest.mark.parametrize("flat", [False, True], ids=["textured", "flat"])
+@pytest.mark.parametrize("case", [c for c in CASES if c.shape[2] >= 2],
+                         ids=[c.name for c in CASES if c.shape[2] >= 2])
+def test_extremes(device, case, flat):
+    """The numerical extremes of the methods' suite (tests/support/extremes.py) through the
+    filter, alone and after the guided refinement, with and without the safeguard: finite,
+    non-negative (the filter's weights make a convex combination), a flat field's mean
+    kept."""
+    buf = make_frame(case, flat)
+    for knobs in ({"nlm": 3, "safeguard": False}, {"nlm": 3}, {"guided": 2, "nlm": 3},
+                  {"guided": 2, "nlm": 3, "safeguard": False}):
+        img = run(buf, method="splat", device=device, **knobs).image
+        check_output(img, buf, flat, f"splat {knobs}/{case.name}")
