@@ -24,6 +24,7 @@ from clrecon.core.samples import FIELDS, FrameInfo, SampleBuffer
 from clrecon.methods import box, layered, splat, sweep  # noqa: F401  (they register themselves)
 from clrecon.methods.guided import check_radius
 from clrecon.methods.nlm import check_radius as check_nlm_radius
+from clrecon.methods.nlm import check_scales as check_nlm_scales
 from clrecon.methods.safeguard import Safeguarded
 from clrecon.tune.runtime import override_key
 
@@ -34,7 +35,7 @@ __all__ = ["METHODS", "PIPELINE_KNOBS", "Reconstruction", "clear_sessions", "mak
 def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool = False,
                   safeguard: bool | None = None, estimate_error: bool = False,
                   guided: int = 0, guide_blend: bool = True, nlm: int = 0,
-                  **knobs) -> Pipeline:
+                  nlm_scales: int = 1, **knobs) -> Pipeline:
     """Plan ``method`` for frames like ``info`` on ``context``.
 
     ``info`` may describe a family rather than one frame: a renderer that knows its largest
@@ -56,12 +57,17 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     the method's is the better (its blurred regions, where its image is nearly noise-free).
     ``nlm=R`` (1..10; 0: off) then averages each half's image further over (2R+1)^2 pixels
     with dual-buffer non-local means, each half weighted by the other
-    (:mod:`clrecon.methods.nlm`); same needs as ``guided``.
+    (:mod:`clrecon.methods.nlm`); same needs as ``guided``. ``nlm_scales=S`` (1..6) also
+    filters each half's low band at S - 1 coarser scales (each half the last's resolution).
     """
     safeguard = check_bool("safeguard", safeguard, none_ok=True)
     estimate_error = check_bool("estimate_error", estimate_error)
     guided = check_radius(guided)
     nlm = check_nlm_radius(nlm)
+    nlm_scales = check_nlm_scales(nlm_scales)
+    if nlm_scales > 1 and not nlm:
+        raise ValueError(f"nlm_scales: {nlm_scales} scales of the non-local means need nlm=R "
+                         f"(a search radius 1..10)")
     guide_blend = check_bool("guide_blend", guide_blend)
     inner = make_method(method, context, info, **knobs)
     if safeguard is None:
@@ -85,7 +91,8 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     # pipeline, unless it may grow into a blurred frame (the wrapper re-plans both)
     if estimate_error or guided or nlm or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
         pipe = Safeguarded(context, info, method, knobs, blend=bool(safeguard), full=inner,
-                           guided=guided, guide_blend=guide_blend, nlm=nlm)
+                           guided=guided, guide_blend=guide_blend, nlm=nlm,
+                           nlm_scales=nlm_scales)
     else:
         pipe = inner
     pipe.grow, pipe.knobs = bool(grow), dict(knobs)
@@ -93,7 +100,8 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
 
 
 #: knobs every method takes through :func:`make_pipeline` (beside its class's own)
-PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided", "guide_blend", "nlm")
+PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided", "guide_blend", "nlm",
+                  "nlm_scales")
 
 
 def method_knobs(method: str) -> set[str]:

@@ -177,3 +177,52 @@ __kernel void nlm_filter(__global const float *restrict planes, __global float *
         }
     }
 }
+
+/* More scales (nlm_scales > 1; clrecon/methods/nlm.py: multiscale): each half's low band
+ * replaced by the filter of its 2x2 means at half the resolution, recursively.
+ *   nlm_down   per coarse pixel and half: the 2x2 mean of the fine image (W, H fine; the
+ *              coarse image is (W / 2, H / 2), an odd last row or column left out)
+ *   nlm_merge  per fine pixel and half, in place: n += up(m - d), d the coarse 2x2 means of
+ *              n (nlm_down's), m their filtered (and merged) image; up: nearest, the rows
+ *              and columns past the last 2x2 block replicated, then a [1/4, 1/2, 1/4] tent
+ *              along each axis with the edge replicated.
+ * Launch: down (W / 2, H / 2, 2), merge (W, H, 2); dim 2: the half. */
+__kernel void nlm_down(__global const float *restrict ua, __global const float *restrict ub,
+                       __global float *restrict da, __global float *restrict db, const int W,
+                       const int H)
+{
+    const int x = get_global_id(0), y = get_global_id(1), h = get_global_id(2);
+    const int w2 = W / 2, h2 = H / 2;
+    if (x >= w2 || y >= h2)
+        return;
+    __global const float *u = h ? ub : ua;
+    const size_t i = (size_t)(2 * y) * W + 2 * x;
+    const float3 s = (vload3(i, u) + vload3(i + 1, u)) + (vload3(i + W, u) + vload3(i + W + 1, u));
+    vstore3(0.25f * s, (size_t)y * w2 + x, h ? db : da);
+}
+
+__kernel void nlm_merge(__global float *na, __global float *nb, __global const float *da,
+                        __global const float *db, __global const float *ma,
+                        __global const float *mb, const int W, const int H)
+{
+    const int x = get_global_id(0), y = get_global_id(1), h = get_global_id(2);
+    if (x >= W || y >= H)
+        return;
+    const int w2 = W / 2, h2 = H / 2;
+    __global const float *d = h ? db : da;
+    __global const float *m = h ? mb : ma;
+    const float t[3] = {0.25f, 0.5f, 0.25f};
+    float3 acc = (float3)(0.0f);
+    for (int a = -1; a <= 1; ++a) {
+        const int i = min(clamp(y + a, 0, H - 1), 2 * h2 - 1) / 2;
+        float3 row = (float3)(0.0f);
+        for (int b = -1; b <= 1; ++b) {
+            const size_t j = (size_t)i * w2 + min(clamp(x + b, 0, W - 1), 2 * w2 - 1) / 2;
+            row += t[b + 1] * (vload3(j, m) - vload3(j, d));
+        }
+        acc += t[a + 1] * row;
+    }
+    __global float *n = h ? nb : na;
+    const size_t p = (size_t)y * W + x;
+    vstore3(vload3(p, n) + acc, p, n);
+}

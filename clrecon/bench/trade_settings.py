@@ -45,6 +45,8 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
         ("splat guided +safeguard", {"guided": 2}),
         ("splat guided nlm3", {"guided": 2, "nlm": 3, "safeguard": False}),
         ("splat guided nlm3 +safeguard", {"guided": 2, "nlm": 3}),
+        ("splat guided nlm3x4", {"guided": 2, "nlm": 3, "nlm_scales": 4, "safeguard": False}),
+        ("splat guided nlm3x4 +safeguard", {"guided": 2, "nlm": 3, "nlm_scales": 4}),
         ("splat guided nlm +safeguard", {"guided": 2, "nlm": 5}),
     ),
 }

@@ -54,6 +54,9 @@ K = 0.45
 RADII = range(1, 11)
 #: the kernel's planes: A's RGB, B's RGB, v
 PLANES = 7
+#: the scales the filter runs at (``nlm_scales``): 1 the image's alone; each more one at
+#: half the resolution of the last
+SCALES = range(1, 7)
 #: rows a work-item of the filter walks (its 8 columns are the lanes of a float8)
 ROWS = 64
 
@@ -61,6 +64,21 @@ ROWS = 64
 def check_radius(r) -> int:
     """``r`` as a search radius the filter takes (0: off); ``ValueError`` otherwise."""
     return knobs.check_radius("nlm", r, RADII, "search radius")
+
+
+def check_scales(n) -> int:
+    """``n`` as a number of scales (1..6); ``ValueError`` otherwise."""
+    return knobs.check_int("nlm_scales", n, SCALES.start, SCALES.stop - 1)
+
+
+def levels(width: int, height: int, scales: int) -> list[tuple[int, int]]:
+    """The (width, height) of each coarser scale the filter runs at: halved (rounded down)
+    from the last while it is at least 2 pixels in both directions."""
+    out, w, h = [], int(width), int(height)
+    while len(out) < scales - 1 and min(w, h) >= 2:
+        w, h = w // 2, h // 2
+        out.append((w, h))
+    return out
 
 
 def padded(width: int, height: int, r: int) -> tuple[int, int, int]:
@@ -123,23 +141,65 @@ def reference(a: np.ndarray, b: np.ndarray, spp: int, r: int):
     return (_filter(a, b, (ha / spp) * v, r), _filter(b, a, (hb / spp) * v, r))
 
 
+def down2(x: np.ndarray) -> np.ndarray:
+    """2x2 means (an odd last row or column is left out)."""
+    h, w = x.shape[0] // 2 * 2, x.shape[1] // 2 * 2
+    x = x[:h, :w]
+    return 0.25 * (x[0::2, 0::2] + x[1::2, 0::2] + x[0::2, 1::2] + x[1::2, 1::2])
+
+
+def up2(x: np.ndarray, shape) -> np.ndarray:
+    """``x`` at twice the resolution into ``shape`` (edge-replicated where ``shape`` is odd):
+    nearest, then a [1/4, 1/2, 1/4] tent along each axis (edges replicated)."""
+    y = np.repeat(np.repeat(x, 2, 0), 2, 1)
+    h, w = shape[:2]
+    y = np.pad(y, ((0, h - y.shape[0]), (0, w - y.shape[1])) + ((0, 0),) * (y.ndim - 2),
+               mode="edge")
+    for axis in (0, 1):
+        p = np.pad(y, [(1, 1) if a == axis else (0, 0) for a in range(y.ndim)], mode="edge")
+        lo = [slice(None)] * y.ndim
+        mid, hi = list(lo), list(lo)
+        lo[axis], mid[axis], hi[axis] = slice(0, -2), slice(1, -1), slice(2, None)
+        y = 0.25 * p[tuple(lo)] + 0.5 * p[tuple(mid)] + 0.25 * p[tuple(hi)]
+    return y
+
+
+def multiscale(na: np.ndarray, nb: np.ndarray, spp: int, r: int, scales: int):
+    """(A, B): the filtered halves ``na``, ``nb`` with their low bands from ``scales - 1``
+    coarser filters: ``n - up2(down2(n)) + up2(m)``, ``m`` the filter (:func:`reference`)
+    of ``down2`` of both halves, itself with its coarser scales (float64)."""
+    na, nb = np.asarray(na, np.float64), np.asarray(nb, np.float64)
+    if scales <= 1 or min(na.shape[:2]) < 2:
+        return na, nb
+    ca, cb = multiscale(*reference(down2(na), down2(nb), spp, r), spp, r, scales - 1)
+    return (na - up2(down2(na), na.shape) + up2(ca, na.shape),
+            nb - up2(down2(nb), nb.shape) + up2(cb, nb.shape))
+
+
 # -- the passes ------------------------------------------------------------------------------
 class NlmPasses:
-    """The two kernels of ``kernels/nlm.cl`` for search radius ``r``."""
+    """The kernels of ``kernels/nlm.cl`` for search radius ``r`` at ``scales`` scales."""
 
-    def __init__(self, context: cl.Context, r: int):
-        self.r = check_radius(r)
+    def __init__(self, context: cl.Context, r: int, scales: int = 1):
+        self.r, self.scales = check_radius(r), check_scales(scales)
         if self.r == 0:
             raise ValueError("nlm: radius 0 is the filter off; nothing to build")
         defines = {"NR": self.r, "NLM_ROWS": ROWS}
         self.planes = get_kernel(context, "nlm", "nlm_planes", defines)
         self.filter = get_kernel(context, "nlm", "nlm_filter", defines)
+        self.down = get_kernel(context, "nlm", "nlm_down", defines)
+        self.merge = get_kernel(context, "nlm", "nlm_merge", defines)
 
     def temporaries(self, width: int, height: int) -> dict[str, int]:
-        """Bytes of the filter's buffers: its padded planes and the two filtered halves."""
+        """Bytes of the filter's buffers: its padded planes (the image's: every coarser
+        scale fits them), the two filtered halves, and per coarser scale its halves' 2x2
+        means (``nl<k>a``, ``nl<k>b``) and their filtered images (``nm<k>a``, ``nm<k>b``)."""
         npx = int(width) * int(height)
-        return {"nlm_planes": PLANES * padded(width, height, self.r)[2] * 4,
-                "na": npx * 12, "nb": npx * 12}
+        out = {"nlm_planes": PLANES * padded(width, height, self.r)[2] * 4,
+               "na": npx * 12, "nb": npx * 12}
+        for k, (w, h) in enumerate(levels(width, height, self.scales), 1):
+            out |= {f"{n}{k}{x}": w * h * 12 for n in ("nl", "nm") for x in "ab"}
+        return out
 
     def __call__(self, queue, ua, ub, planes, na, nb, w, h, spp, wait_for=None):
         """[("nlm", ev), ("nlm", ev)]: ``na``, ``nb`` from the halves' images ``ua``,
@@ -159,11 +219,37 @@ class NlmPasses:
                                          (1, 1, 1), wait_for=[ev0])
         return [("nlm", ev0), ("nlm", ev1)]
 
+    def run_scales(self, queue, planes, na, nb, bufs, w, h, spp, wait_for=None):
+        """The coarser scales on the filtered halves ``na``, ``nb`` (in place): down to the
+        coarsest (2x2 means, the filter), then each scale merged into the one above it.
+        ``bufs``: the temporaries of :meth:`temporaries` by name."""
+        sizes = [(w, h)] + levels(w, h, self.scales)
+        imgs = [(na, nb)] + [(bufs[f"nm{k}a"], bufs[f"nm{k}b"]) for k in range(1, len(sizes))]
+        evs, wait = [], wait_for
+        for k in range(1, len(sizes)):
+            (fw, fh), (cw, ch) = sizes[k - 1], sizes[k]
+            la, lb = bufs[f"nl{k}a"], bufs[f"nl{k}b"]
+            self.down.set_args(*imgs[k - 1], la, lb, np.int32(fw), np.int32(fh))
+            evs.append(("nlm", cl.enqueue_nd_range_kernel(queue, self.down, (cw, ch, 2), None,
+                                                          wait_for=wait)))
+            evs += self(queue, la, lb, planes, *imgs[k], cw, ch, spp, [evs[-1][1]])
+            wait = [evs[-1][1]]
+        for k in range(len(sizes) - 1, 0, -1):
+            (fw, fh) = sizes[k - 1]
+            self.merge.set_args(*imgs[k - 1], bufs[f"nl{k}a"], bufs[f"nl{k}b"], *imgs[k],
+                                np.int32(fw), np.int32(fh))
+            evs.append(("nlm", cl.enqueue_nd_range_kernel(queue, self.merge, (fw, fh, 2), None,
+                                                          wait_for=wait)))
+            wait = [evs[-1][1]]
+        return evs
+
     def step(self, inputs: tuple[str, str]) -> Step:
         """The plan's step: the halves' images named ``inputs`` filtered into ``na``, ``nb``
         (its buffers: :meth:`temporaries`)."""
         def run(queue, f, wait_for):
             b = f.buffers
-            return self(queue, b[inputs[0]], b[inputs[1]], b["nlm_planes"], b["na"], b["nb"],
-                        f.width, f.height, f.spp, wait_for)
+            evs = self(queue, b[inputs[0]], b[inputs[1]], b["nlm_planes"], b["na"], b["nb"],
+                       f.width, f.height, f.spp, wait_for)
+            return evs + self.run_scales(queue, b["nlm_planes"], b["na"], b["nb"], b,
+                                         f.width, f.height, f.spp, [evs[-1][1]])
         return Step("nlm", tuple(inputs), ("na", "nb"), run)

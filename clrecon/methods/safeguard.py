@@ -126,9 +126,9 @@ class Safeguarded(Pipeline):
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
                  full: Pipeline | None = None, views: bool = True, joint: bool = True,
-                 guided: int = 0, guide_blend: bool = True, nlm: int = 0):
+                 guided: int = 0, guide_blend: bool = True, nlm: int = 0, nlm_scales: int = 1):
         self._flags = dict(views=views, joint=joint, guided=guided, guide_blend=guide_blend,
-                           nlm=nlm)
+                           nlm=nlm, nlm_scales=nlm_scales)
         if info.spp < 2:
             raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent "
                              f"halves), the frame has {info.spp}")
@@ -222,7 +222,7 @@ class Safeguarded(Pipeline):
             steps.append(Step("guided_blend", ("qa", "qb", "ma", "mb"), ("ba", "bb"),
                               self._guide_blend_step()))
         if self.nlm:
-            passes = nl.NlmPasses(context, self.nlm)
+            passes = nl.NlmPasses(context, self.nlm, nlm_scales)
             temps |= passes.temporaries(info.width, info.height)
             steps.append(passes.step(self.half_images))
             self.half_images = ("na", "nb")
@@ -376,7 +376,7 @@ class Safeguarded(Pipeline):
             d["guided"] = self.guided
             d["guide_blend"] = self.guide_blend
         if self.nlm:
-            d["nlm"] = self.nlm
+            d["nlm"], d["nlm_scales"] = self.nlm, self._flags["nlm_scales"]
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True

@@ -30,7 +30,7 @@ def _fresh_image(device, method, knobs, buf):
 
 @pytest.mark.parametrize("method,knobs", [("sweep", {}), ("layered", {}), ("splat", {}),
                                           ("splat", {"guided": 2}),
-                                          ("splat", {"guided": 2, "nlm": 3}),
+                                          ("splat", {"guided": 2, "nlm": 3, "nlm_scales": 3}),
                                           ("box", {"estimate_error": True})])
 @pytest.mark.parametrize("spp", [8, 16])
 def test_a_replanned_frame_reuses_the_last_plans_buffers_whatever_they_hold(

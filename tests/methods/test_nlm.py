@@ -26,18 +26,19 @@ from clrecon.scenes.render import render_samples
 @pytest.mark.parametrize("method", ["layered", "sweep", "splat"])
 @pytest.mark.parametrize("safeguard", [False, True])
 @pytest.mark.parametrize("guided", [0, 2])
-@pytest.mark.parametrize("spp", [5, 16])
-def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp):
+@pytest.mark.parametrize("spp, scales", [(5, 1), (16, 1), (5, 3)])
+def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp, scales):
     """The filtered halves are the reference's filter of the halves' images the pipeline
     had before it (the method's, or the guided chain's); the image is their mean without
     the safeguard and the safeguard's blend with it."""
     buf = frame(rng, h=22, w=27, s=spp)
     q = device.queue
-    pipe, image = run_plan(device, buf, method, guided=guided, nlm=3, safeguard=safeguard)
+    pipe, image = run_plan(device, buf, method, guided=guided, nlm=3, nlm_scales=scales,
+                           safeguard=safeguard)
     shape = (buf.height, buf.width, 3)
     ia, ib = ("ba", "bb") if guided else ("ma", "mb")
     ua, ub = read_buffer(pipe, q, ia, shape), read_buffer(pipe, q, ib, shape)
-    ra, rb = nlm.reference(ua, ub, buf.spp, 3)
+    ra, rb = nlm.multiscale(*nlm.reference(ua, ub, buf.spp, 3), buf.spp, 3, scales)
     tol = 1e-4 * max(1.0, float(np.abs(ra).max()))
     assert_close(read_buffer(pipe, q, "na", shape), ra, rtol=1e-4, atol=tol, what="filtered A")
     assert_close(read_buffer(pipe, q, "nb", shape), rb, rtol=1e-4, atol=tol, what="filtered B")
@@ -54,7 +55,8 @@ def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp
                                          sg.GUIDED_Z7 if guided else 0.0, variance_scale(c))
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()
-    assert d["nlm"] == 3 and d["safeguard"] is safeguard and "nlm" in d["plan"]
+    assert d["nlm"] == 3 and d["nlm_scales"] == scales and "nlm" in d["plan"]
+    assert d["safeguard"] is safeguard
 
 
 def test_knob_contract(device, rng):
@@ -64,6 +66,11 @@ def test_knob_contract(device, rng):
     for bad in (-1, 11, 2.5, True, "2"):
         with pytest.raises(ValueError, match="nlm: the search radius"):
             run(buf, method="splat", device=device, nlm=bad)
+    with pytest.raises(ValueError, match="nlm_scales: 3 scales of the non-local means need"):
+        run(buf, method="splat", device=device, nlm_scales=3)
+    for bad in (0, 7):
+        with pytest.raises(ValueError, match="nlm_scales"):
+            run(buf, method="splat", device=device, nlm=2, nlm_scales=bad)
     one = frame(rng, h=12, w=12, s=1)
     with pytest.raises(ValueError, match="nlm: needs >= 2 samples"):
         run(one, method="splat", device=device, nlm=2, safeguard=False)
@@ -121,6 +128,6 @@ def test_extremes(device, case, flat):
     kept."""
     buf = make_frame(case, flat)
     for knobs in ({"nlm": 3, "safeguard": False}, {"nlm": 3}, {"guided": 2, "nlm": 3},
-                  {"guided": 2, "nlm": 3, "safeguard": False}):
+                  {"guided": 2, "nlm": 3, "nlm_scales": 4, "safeguard": False}):
         img = run(buf, method="splat", device=device, **knobs).image
         check_output(img, buf, flat, f"splat {knobs}/{case.name}")

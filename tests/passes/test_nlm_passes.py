@@ -124,3 +124,80 @@ def test_radius_contract():
         with pytest.raises(ValueError, match="nlm: the search radius"):
             nlm.check_radius(bad)
     assert nlm.check_radius(0) == 0 and nlm.check_radius(10) == 10
+
+
+def test_down_and_up_against_loops(rng):
+    """The reference's 2x2 means and tent upsampling (clrecon.methods.nlm.down2, up2), odd
+    sizes included, against plain loops."""
+    x = rng.random((7, 9, 3))
+    d = nlm.down2(x)
+    assert d.shape == (3, 4, 3)
+    assert np.allclose(d[1, 2], x[2:4, 4:6].mean((0, 1)))
+    u = nlm.up2(d, x.shape)
+    assert u.shape == x.shape
+    near = np.empty_like(x)  # nearest, edge-replicated past the last full 2x2 block
+    for i in range(7):
+        for j in range(9):
+            near[i, j] = d[min(i, 5) // 2, min(j, 7) // 2]
+    t = (0.25, 0.5, 0.25)
+    for i, j in ((0, 0), (3, 4), (6, 8), (5, 7)):
+        want = sum(t[a + 1] * t[b + 1] * near[min(max(i + a, 0), 6), min(max(j + b, 0), 8)]
+                   for a in (-1, 0, 1) for b in (-1, 0, 1))
+        assert np.allclose(u[i, j], want)
+    assert np.allclose(nlm.up2(np.full((3, 4, 3), 2.0), (7, 9, 3)), 2.0)
+
+
+def _coarse_noise_halves(rng, h, w):
+    """A smooth image with noise of a 4-pixel grain, opposite in the two halves, and fine
+    noise: what the coarser scales are for."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    base = np.stack([1 + 0.5 * np.sin(xx / 5.0), 1 + yy / 20.0, 0.7 + 0 * xx], -1)
+    cn = rng.normal(0, 0.2, (h // 4 + 1, w // 4 + 1, 3)).repeat(4, 0).repeat(4, 1)[:h, :w]
+    a = base + cn + rng.normal(0, 0.1, base.shape)
+    b = base - cn + rng.normal(0, 0.1, base.shape)
+    return a.astype(np.float32), b.astype(np.float32), base
+
+
+@pytest.mark.parametrize("shape, r, scales", [((13, 17, 8), 2, 2), ((33, 40, 5), 3, 4),
+                                              ((9, 6, 4), 1, 3), ((1, 11, 4), 2, 3),
+                                              ((3, 3, 4), 1, 6), ((64, 48, 16), 3, 4)])
+def test_scales_match_reference(device, rng, shape, r, scales):
+    h, w, spp = shape
+    a, b, _ = _coarse_noise_halves(rng, h, w)
+    ctx, q = device.context, device.queue
+    mf = cl.mem_flags
+    passes = nlm.NlmPasses(ctx, r, scales)
+    bufs = {k: cl.Buffer(ctx, mf.READ_WRITE, v) for k, v in passes.temporaries(w, h).items()}
+
+    def up(x):
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+
+    evs = passes(q, up(a), up(b), bufs["nlm_planes"], bufs["na"], bufs["nb"], w, h, spp)
+    passes.run_scales(q, bufs["nlm_planes"], bufs["na"], bufs["nb"], bufs, w, h, spp,
+                      [evs[-1][1]])
+    na, nb = np.empty((h, w, 3), np.float32), np.empty((h, w, 3), np.float32)
+    cl.enqueue_copy(q, na, bufs["na"])
+    cl.enqueue_copy(q, nb, bufs["nb"])
+    one = nlm.reference(a, b, spp, r)
+    ra, rb = nlm.multiscale(*one, spp, r, scales)
+    assert_close(na, ra, rtol=2e-5, atol=2e-5, what="half A")
+    assert_close(nb, rb, rtol=2e-5, atol=2e-5, what="half B")
+    if nlm.levels(w, h, scales) and min(h, w) >= 8:  # the coarser scales do something
+        assert np.abs(ra - one[0]).max() > 0.05
+
+
+def test_more_scales_remove_coarse_noise(rng):
+    """On halves whose noise has a grain coarser than a radius-3 window, four scales leave
+    less error than one (the reference)."""
+    a, b, base = _coarse_noise_halves(rng, 48, 64)
+    err = [np.mean((nlm.multiscale(*nlm.reference(a, b, 8, 3), 8, 3, s)[0] - base) ** 2)
+           for s in (1, 4)]
+    assert err[1] < 0.8 * err[0], err
+
+
+def test_scales_contract():
+    for bad in (0, 7, 2.0, True):
+        with pytest.raises((ValueError, TypeError), match="nlm_scales"):
+            nlm.check_scales(bad)
+    assert nlm.levels(17, 13, 3) == [(8, 6), (4, 3)]
+    assert nlm.levels(17, 13, 1) == [] and nlm.levels(1, 50, 4) == []
