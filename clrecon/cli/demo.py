@@ -146,14 +146,14 @@ def _method(buf, method: str, device):
 #: the demo's spellings of the steps inside the safeguard, as suffixes of a method:
 #: ``METHOD+guided`` (clrecon.methods.guided), ``METHOD+guided+nlm`` (clrecon.methods.nlm)
 GUIDED_SUFFIX, GUIDED_RADIUS = "+guided", 2
-NLM_SUFFIX, NLM_RADIUS = "+nlm", 3
+NLM_SUFFIX, NLM_RADIUS, NLM_SCALES = "+nlm", 3, 4
 
 
 def _spec(entry: str) -> tuple[str, dict]:
     """A ``--methods`` entry as (method, knobs)."""
     knobs = {}
     if entry.endswith(NLM_SUFFIX):
-        entry, knobs = entry[:-len(NLM_SUFFIX)], {"nlm": NLM_RADIUS}
+        entry, knobs = entry[:-len(NLM_SUFFIX)], {"nlm": NLM_RADIUS, "nlm_scales": NLM_SCALES}
     if entry.endswith(GUIDED_SUFFIX):
         entry, knobs = entry[:-len(GUIDED_SUFFIX)], {"guided": GUIDED_RADIUS, **knobs}
     return entry, knobs
@@ -234,8 +234,9 @@ def _print_notes(methods, ref_spp: int, device, out: Path) -> None:
         steps = ([f"the guided refinement (guided={GUIDED_RADIUS}: each half's box image "
                   f"regressed window by window on the method's image of that half; README: "
                   f"The guided refinement)"] if "guided" in knobs else []) + (
-            [f"non-local means on each half (nlm={NLM_RADIUS}: weights from the other half; "
-             f"README: Non-local means on the halves)"] if "nlm" in knobs else [])
+            [f"non-local means on each half (nlm={NLM_RADIUS}, nlm_scales={NLM_SCALES}: "
+             f"weights from the other half, at {NLM_SCALES} scales; README: Non-local means "
+             f"on the halves)"] if "nlm" in knobs else [])
         if steps:
             print(f"{m}: {name} with " + ", then ".join(steps) + ", then the safeguard")
     print(f"device: {device}")

@@ -29,6 +29,14 @@ against box, its blend) sees the filtered halves as it sees any method's, so the
 stays consistent as samples grow (where the filter's averaging is a bias, the blend moves
 toward box).
 
+More scales (``nlm_scales=S``). The filter averages over (2R+1)^2 pixels, so noise whose
+grain is coarser than that stays (low-frequency blotches on a far wall behind a defocused
+object). With ``S > 1`` each filtered half ``n`` gets its low band from the same filter one
+scale down: ``n + up2(m - d)``, ``d = down2(n)`` (2x2 means) and ``m`` the dual-buffer
+filter of both halves' ``d`` (itself with its ``S - 2`` coarser scales); ``up2`` is nearest
+then a [1/4, 1/2, 1/4] tent (:func:`multiscale`). Each coarser scale costs a quarter of the
+one above.
+
 Constants: ``k = 0.45`` and the 3x3 patch are Rousselle et al.'s; ``R`` is the knob (the
 trade lists 3 and 5: 5 the cheapest of the radii measured, 3, 4, 5 and 7, that kept the
 gains on every scene, 3 at less than half its cost; ``docs/measurements/nlm-pocl.md``).
