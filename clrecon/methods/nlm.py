@@ -54,6 +54,7 @@ import pyopencl as cl
 from clrecon.core import knobs
 from clrecon.core.device import get_kernel
 from clrecon.core.plan import Step
+from clrecon.methods.guided import plane_pitch
 from clrecon.methods.safeguard_passes import halves
 
 #: Rousselle et al. 2012's damping of the noise in the distance
@@ -75,7 +76,8 @@ def check_radius(r) -> int:
 
 
 def check_scales(n) -> int:
-    """``n`` as a number of scales (1..6); ``ValueError`` otherwise."""
+    """``n`` as a number of scales (1..6); ``ValueError`` (``KnobTypeError`` for a
+    non-integer) otherwise."""
     return knobs.check_int("nlm_scales", n, SCALES.start, SCALES.stop - 1)
 
 
@@ -92,12 +94,12 @@ def levels(width: int, height: int, scales: int) -> list[tuple[int, int]]:
 def padded(width: int, height: int, r: int) -> tuple[int, int, int]:
     """(row pitch, rows, plane pitch) of the kernel's planes: the image with ``r + 1``
     pixels of replicated edge around it, the rows rounded up to the filter's 8 lanes; planes
-    a multiple of 1024 floats plus 80 apart (not a multiple of 4 KiB: seven loads of one
-    pixel would share an L1 set)."""
+    apart by the guided refinement's pitch (:func:`~clrecon.methods.guided.plane_pitch`: not
+    a multiple of 4 KiB, so that seven loads of one pixel do not share an L1 set)."""
     pad = r + 1
     pw = -(-int(width) // 8) * 8 + 2 * pad
     ph = int(height) + 2 * pad
-    return pw, ph, -(-pw * ph // 1024) * 1024 + 80
+    return pw, ph, plane_pitch(pw, ph)
 
 
 # -- NumPy reference -------------------------------------------------------------------------
