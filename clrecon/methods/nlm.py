@@ -23,11 +23,14 @@ or the guided refinement's) are independent. ``v`` is the 3x3 mean (clipped) of
   (clipped to the image); the weight ``exp(-max(0, D2))``, 0 where ``D2`` is NaN, 1 for
   ``q = p``; coordinates off the image clamp to its edge.
 
-Because each half's weights come from the other half, the filtered halves stay independent
-and their difference still measures the variance: the safeguard after it (its bias test
-against box, its blend) sees the filtered halves as it sees any method's, so the result
-stays consistent as samples grow (where the filter's averaging is a bias, the blend moves
-toward box).
+Because each half's weights come from the other half, the safeguard after it (its bias test
+against box, its blend) can treat the filtered halves as it treats any method's, so the
+result stays consistent as samples grow (where the filter's averaging is a bias, the blend
+moves toward box). They are not fully independent: half B's noise steers half A's weights
+and moves B's own filtered value as well, so the halves' difference understates the
+variance of their mean (0.9-1.6x at one scale, 1.6-2.1x at four; most of that variance is
+the weights' own noise, so a fixed-weight propagation understates it more;
+``docs/measurements/chain-safeguard-pocl.md``).
 
 More scales (``nlm_scales=S``). The filter averages over (2R+1)^2 pixels, so noise whose
 grain is coarser than that stays (low-frequency blotches on a far wall behind a defocused
