@@ -30,7 +30,8 @@
  * (1 float, kernels/safeguard_ratio.cl's scale or 1) and nine
  * planes of (H, rp) floats, rp a multiple of SG_VW >= W (rows3 = vb3, vm3, e3, ee3;
  * rows7 = e7, vb7, e3max, e7max; then ee7); blend:
- * out (H, W, 3), error (H, W); z7 > 0: the 7x7 bias mean is tested at z7 standard errors.
+ * out (H, W, 3), error (H, W); z7 > 0: the 7x7 bias mean is tested at z7 standard errors;
+ * test3 = 0: the bias term leaves the 3x3 mean out (the guided chain below 8 spp).
  * Vector width: safeguard_rows and safeguard_blend run SG_VW consecutive pixels of a row per
  * work-item as floatN (SG_VW 1, 4, 8 or 16; the host passes 16 for CPUs, 1 otherwise). PoCL
  * 3.1 vectorises a kernel across work-items only where its body holds no vector-typed value
@@ -271,7 +272,7 @@ __kernel void safeguard_rows(__global const float *stats, __global float *rows, 
 __kernel void safeguard_blend(__global const float *rows, __global const float *box,
                               __global const float *m, __global float *out,
                               __global float *error, int width, int height, int rp, int mode,
-                              int write_error, float z7)
+                              int write_error, float z7, int test3)
 {
     const int x0 = get_global_id(0) * SG_VW, y = get_global_id(1);
     if (x0 >= width || y >= height)
@@ -331,7 +332,7 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
     vfloat mu7 = e7 / n7;
     if (z7 > 0.0f)
         mu7 -= z7 * sqrt(fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7);
-    const vfloat b2 = fmax(0.0f, fmax(mu7, mu3 - 2.0f * se3));
+    const vfloat b2 = fmax(0.0f, test3 ? fmax(mu7, mu3 - 2.0f * se3) : mu7);
     const vfloat err_m = b2 + vm3;
     vfloat w = 0.0f, err = vb3;
     if (mode == 1) {

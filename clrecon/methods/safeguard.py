@@ -24,15 +24,15 @@ radiance averaged over RGB:
   (a bias is coherent in space, noise is not), and over 3x3 where that mean stands two
   standard errors above zero (a bias along a thin edge, which the wider window dilutes; the
   noise of the 3x3 mean alone would otherwise pull the image toward box at low spp):
-  ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))``;
+  ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))`` (the guided chain: ``GUIDED_Z7``,
+  ``bias_test3``);
 * the method's error is ``err_m = b2 + mean3(vm)``; the weight that minimises the expected
   squared error of ``box + w (m - box)`` when the two errors are independent is
   ``w = vb / (vb + err_m)``, and the blend's error ``w^2 err_m + (1 - w)^2 vb``. Here ``vb``
   is ``max(mean3(vb), mean7(vb))`` (box's own error estimate stays the unbiased
-  ``mean3(vb)``): a pixel whose own samples all missed a rare contributor
-  (a blurred highlight) has halves that agree and a variance near 0, while its neighbours'
-  samples show the spread (without the 7x7 term the blend lost 2 dB to the method on
-  ``bokeh`` at 8 spp).
+  ``mean3(vb)``): a pixel whose own samples all missed a rare contributor (a blurred
+  highlight) has halves that agree and a variance near 0, while its neighbours' samples
+  show the spread (without the 7x7 term the blend lost 2 dB on ``bokeh`` at 8 spp).
 
 The sampler's convergence. Halves measure the variance of a half's mean; ``k`` turns it
 into the frame's as if the samples were independent (variance ``1/n``). Stratified samples
@@ -44,36 +44,31 @@ variance as expectation for independent samples: ``s = 1``), clamped to [0, 1], 
 ``vb`` and ``vm`` everywhere (``safeguard_ratio``). It assumes the quarter-to-half
 convergence holds from half to frame; below 16 spp the quarters are too few to say.
 
-As samples grow, ``vb`` falls like box's error while a method's bias does not, so ``w``
-goes to 0 and the image to box's: the blend is consistent. Where the method is unbiased
-(blurred regions, which are most of its gain) ``w`` stays near 1.
+As samples grow, ``vb`` falls like box's error while a method's bias does not: ``w`` goes to
+0 and the image to box's (consistent); where the method is unbiased ``w`` stays near 1.
 
-Range: valid colours reach 1e30, whose squares overflow float32; the kernels keep each
-pixel's statistics in units of its own binary exponent and rescale a window to its largest
-before adding, so the image is exact at any valid colour, and the error image saturates at
-float32's largest value (colours above ~1e19).
+Range: colours reach 1e30, whose squares overflow float32; the kernels keep each pixel's
+statistics in units of its own binary exponent and rescale a window to its largest before
+adding: the image is exact at any valid colour, the error saturates at FLT_MAX (colours
+above ~1e19).
 
 The method's image. A method whose weights do not depend on the sample count
 (``Pipeline.halves_mean``: all three) blends the mean of its halves' images,
 ``(ha mA + hb mB) / S``, in place of ``m``: its bias is the method's, its variance that of
-the frame's image (for an estimator linear in the samples exactly), and the run on the frame
-is saved. layered's filters follow its partitions, which follow the samples' depth
-statistics: its ``shared_steps`` (statistics and partition setup) run once on the frame, and
-both halves filter those partitions (with their own, the halves' mean lost 0.39 dB on
-``bokeh`` at 8 spp). Against the blend with the frame's own image, over the six blurred
-built-in scenes at 4-16 spp (512x512) and 32-64 spp (256x256), the halves' mean measured
--0.07 to +0.01 dB for sweep, -0.10 to +0.43 dB for splat and -0.13 to +0.01 dB for layered
-(the -0.13: bokeh at 64 spp).
+the frame's image (exactly for an estimator linear in the samples), and the frame's run is
+saved. layered's ``shared_steps`` (statistics, partition setup) run once on the frame and
+both halves filter those partitions (with their own, 0.39 dB lost on ``bokeh`` at 8 spp).
+Against the blend with the frame's own image (six blurred built-in scenes, 4-16 spp at
+512x512, 32-64 at 256x256): sweep -0.07 to +0.01 dB, splat -0.10 to +0.43, layered -0.13
+(bokeh, 64 spp) to +0.01.
 
 Cost: the method runs on both halves (layered's statistics and partitions on the frame),
-plus one split copy of the fields (none where the method's passes read each half in place,
-``Pipeline.sample_views``: sweep's block sort, layered, splat's mip plan) and three cheap
-passes (the statistics, and the windowed means in two separable passes: row segments, then
-columns and the blend). A method's ``joint_steps`` (layered's reproject) run once on the
+plus a split copy of the fields (none where its passes read each half in place,
+``Pipeline.sample_views``) and three cheap passes (the statistics; the windowed means in
+two separable passes). A method's ``joint_steps`` (layered's reproject) run once on the
 frame for both halves, B's outputs apart: one read of the samples, not two views' (720p 8 spp,
 PoCL: layered's default 251 against 287 ms, 300 MB more; off where B's buffers do not fit).
-``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports);
-``estimate_error=True`` also returns the error image.
+``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports).
 """
 from __future__ import annotations
 
@@ -87,7 +82,12 @@ from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
 from clrecon.methods import nlm as nl
 from clrecon.methods.guided import GuidedPasses, check_radius
-from clrecon.methods.safeguard_passes import SafeguardPasses, halves, measures_convergence
+from clrecon.methods.safeguard_passes import (
+    SafeguardPasses,
+    bias_test3,
+    halves,
+    measures_convergence,
+)
 
 # the NumPy reference and the blend kernel's modes live in their own module; re-exported
 # here, where the safeguard is (``X as X``: an explicit re-export)
@@ -99,10 +99,9 @@ from clrecon.methods.safeguard_reference import (  # noqa: E402
     reference_of_halves as reference_of_halves,
 )
 
-#: with the guided refinement, the blend toward box tests its 7x7 bias mean at 2 standard
-#: errors, as the 3x3 mean is tested (clrecon.methods.guided: the regression removes the bias
-#: that is coherent over its windows, so the untested 7x7 mean of the papers' methods mostly
-#: sees noise there, and its max with 0 pulls the image toward box)
+#: with the guided refinement the blend tests its 7x7 bias mean at 2 standard errors too (its
+#: regression removes the bias coherent over its windows: an untested 7x7 mean mostly sees
+#: noise there, and its max with 0 pulls the image toward box); its 3x3 test: bias_test3
 GUIDED_Z7 = 2.0
 
 
@@ -361,7 +360,8 @@ class Safeguarded(Pipeline):
             return self.passes.run_blend(queue, b["stats"], b["rows"], b["box"], m,
                                          b["out"], b["error"], f.width, f.height, self.mode, 1,
                                          wait_for, GUIDED_Z7 if self.guided else 0.0,
-                                         b["sg_scale"] if self.scaled else None)
+                                         b["sg_scale"] if self.scaled else None,
+                                         bias_test3(bool(self.guided), f.spp))
         return run
 
     # -- protocol ----------------------------------------------------------------------------

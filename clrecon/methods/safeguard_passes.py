@@ -22,6 +22,9 @@ STAT_PLANES = 5
 #: the fewest samples a quarter (half a half) holds for the sampler's convergence to be
 #: measured (:func:`measures_convergence`): from 16 spp
 MIN_QUARTER = 4
+#: the fewest samples a half holds for the guided chain's blend to test the 3x3 bias mean
+#: (:func:`bias_test3`): from 8 spp, the count that :data:`MIN_QUARTER` asks of a quarter
+MIN_TEST3_HALF = 4
 #: the row segments' planes: vb3, vm3, e3, ee3 (3 wide), e7, vb7, e3max, e7max, ee7 (7 wide)
 ROW_PLANES = 9
 #: padding columns on each side of the statistics' planes (the 7-wide window's reach)
@@ -38,6 +41,16 @@ def measures_convergence(spp: int) -> bool:
     sampler's measured convergence (``safeguard_ratio``): each half's quarters hold at least
     :data:`MIN_QUARTER` samples."""
     return halves(int(spp))[0] // 2 >= MIN_QUARTER
+
+
+def bias_test3(guided: bool, spp: int) -> bool:
+    """Whether the blend's bias term tests the 3x3 mean (a bias along a thin edge): always for
+    a method's own halves; for the guided chain's (whose 7x7 mean is tested too) only where
+    each half holds :data:`MIN_TEST3_HALF` samples or more. With fewer the test fires on
+    noise more than on edges: without it the chain gained 0.15-0.59 dB at 4 spp on every
+    built-in scene at 512x512, and lost up to 0.27 dB at 32-64 spp, where it is kept
+    (``docs/measurements/chain-safeguard-pocl.md``)."""
+    return not guided or min(halves(int(spp))) >= MIN_TEST3_HALF
 
 
 def vector_width(context: cl.Context) -> int:
@@ -127,14 +140,15 @@ class SafeguardPasses:
         return [ev, cl.enqueue_nd_range_kernel(queue, self.ratio, (1,), None, wait_for=[ev])]
 
     def run_blend(self, queue, stats, rows, box, m, out, error, w, h, mode, write_error,
-                  wait_for=None, z7: float = 0.0, vscale=None):
+                  wait_for=None, z7: float = 0.0, vscale=None, test3: bool = True):
         """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
         ("safeguard_blend", ev)]. ``z7 > 0``: the 7x7 bias mean is tested at ``z7``
-        standard errors, as the 3x3 one at 2. ``vscale``: the halves' variances' factor
+        standard errors, as the 3x3 one at 2; ``test3=False``: the bias term leaves the
+        3x3 test out (:func:`bias_test3`). ``vscale``: the halves' variances' factor
         (:meth:`run_ratio`'s buffer; None: 1)."""
         ev = self.run_rows(queue, stats, rows, w, h, wait_for, vscale)
         return [("safeguard_rows", ev), ("safeguard_blend", self.run_blend_only(
-            queue, rows, box, m, out, error, w, h, mode, write_error, [ev], z7))]
+            queue, rows, box, m, out, error, w, h, mode, write_error, [ev], z7, test3))]
 
     def run_rows(self, queue, stats, rows, w, h, wait_for=None, vscale=None):
         """The windowed sums' row segments alone (``vscale`` as for :meth:`run_blend`)."""
@@ -145,12 +159,13 @@ class SafeguardPasses:
                                           wait_for=wait_for)
 
     def run_blend_only(self, queue, rows, box, m, out, error, w, h, mode, write_error,
-                       wait_for=None, z7: float = 0.0):
+                       wait_for=None, z7: float = 0.0, test3: bool = True):
         """The blend from row segments already computed (the same weights for any box and
         m: the guided refinement blends each half with them). ``out`` may be ``box`` or
         ``m`` (a work-item reads them at its own pixels only)."""
         rp = self.rows_pitch(w)
         self.blend.set_args(rows, box, m, out, error, np.int32(w), np.int32(h), np.int32(rp),
-                            np.int32(mode), np.int32(write_error), np.float32(z7))
+                            np.int32(mode), np.int32(write_error), np.float32(z7),
+                            np.int32(bool(test3)))
         return cl.enqueue_nd_range_kernel(queue, self.blend, (rp // self.vw, h), None,
                                           wait_for=wait_for)

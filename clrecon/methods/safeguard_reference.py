@@ -58,7 +58,7 @@ def variance_scale(color: np.ndarray) -> float:
 
 
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
-              z7: float = 0.0):
+              z7: float = 0.0, test3: bool = True):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
@@ -69,18 +69,20 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
         m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
     c = color.astype(np.float64)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
-                               mode, z7, variance_scale(c))[:2]
+                               mode, z7, variance_scale(c), test3)[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
-                        mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0):
+                        mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0,
+                        test3: bool = True):
     """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
     ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
     half estimates, as the guided refinement's blend toward its guide takes) and the
     method's images; float64. ``w``: the blend's weight of the method (None unless
     ``mode`` is the blend). ``z7 > 0``: the 7x7 bias mean must stand ``z7`` standard errors
     above zero (the guided refinement's chain), as the 3x3 mean must stand 2. ``vscale``:
-    the factor of the halves' variances (:func:`variance_scale`; 1: independent samples)."""
+    the factor of the halves' variances (:func:`variance_scale`; 1: independent samples).
+    ``test3=False``: the bias term leaves the 3x3 test out (``safeguard_passes.bias_test3``)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     s = ha + hb
     box = (ha * a + hb * b) / s
@@ -102,7 +104,7 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     if z7 > 0:
         n7 = _window_count(e.shape, 3)
         mu7 = mu7 - z7 * np.sqrt(np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7)
-    b2 = np.maximum(0.0, np.maximum(mu7, mu3 - 2.0 * se3))
+    b2 = np.maximum(0.0, np.maximum(mu7, mu3 - 2.0 * se3) if test3 else mu7)
     err_m = b2 + _window_mean(vm, 1)
     if mode == MODE_METHOD:
         return m, np.minimum(err_m, _FLT_MAX), None

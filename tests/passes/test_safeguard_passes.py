@@ -14,7 +14,7 @@ from clrecon.methods.safeguard_passes import SafeguardPasses, measures_convergen
 from clrecon.methods.safeguard_reference import variance_scale
 
 
-def _run(device, color, m, ma, mb, mode, vw, z7=0.0):
+def _run(device, color, m, ma, mb, mode, vw, z7=0.0, test3=True):
     ctx, q = device.context, device.queue
     h, w, s, _ = color.shape
     passes = SafeguardPasses(ctx, vw)
@@ -42,7 +42,7 @@ def _run(device, color, m, ma, mb, mode, vw, z7=0.0):
         partial = up(np.full(passes.ratio_bytes(h) // 4, np.nan))
         ev = passes.run_ratio(q, stats, partial, vscale, w, h, s, [ev])[-1]
     passes.run_blend(q, stats, rows, box, m_in, out, err, w, h, mode, 1, [ev],
-                     z7, vscale)[-1][1].wait()
+                     z7, vscale, test3)[-1][1].wait()
     img, e = np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32)
     cl.enqueue_copy(q, img, out)
     cl.enqueue_copy(q, e, err)
@@ -58,28 +58,37 @@ CASES = [(vw, w, mode, 1.0) for vw in (1, 4, 8, 16) for w in (5, 16, 17, 37)
 # dim and bright frames: each pixel's statistics in units of its own exponent, the padding's
 # below every pixel's (a padding exponent of 0 would flush a 1e-30 frame's border windows)
 CASES += [(vw, 17, sg.MODE_BLEND, scale) for vw in (1, 16) for scale in (1e-30, 1e15)]
-CASES = [(*c, 0.0) for c in CASES]
-# the 7x7 bias mean tested at 2 standard errors (the guided refinement's chain)
-CASES += [(vw, w, sg.MODE_BLEND, scale, 2.0) for vw in (1, 8, 16) for w in (5, 37)
-          for scale in (1.0, 1e15)]
+CASES = [(*c, 0.0, True) for c in CASES]
+# the 7x7 bias mean tested at 2 standard errors (the guided refinement's chain), with and
+# without the 3x3 test (bias_test3: the chain below 8 spp)
+CASES += [(vw, w, mode, scale, 2.0, t3) for vw in (1, 8, 16) for w in (5, 37)
+          for scale in (1.0, 1e15) for mode, t3 in ((sg.MODE_BLEND, True),
+                                                    (sg.MODE_BLEND, False),
+                                                    (sg.MODE_METHOD, False))]
 
 
-@pytest.mark.parametrize("vw,w,mode,scale,z7", CASES)
-def test_kernels_match_reference(device, vw, w, mode, scale, z7):
-    rng = np.random.default_rng(w + 100 * vw + 7 * mode + int(1000 * z7))
+@pytest.mark.parametrize("vw,w,mode,scale,z7,test3", CASES)
+def test_kernels_match_reference(device, vw, w, mode, scale, z7, test3):
+    rng = np.random.default_rng(w + 100 * vw + 7 * mode + int(1000 * z7) + 13 * test3)
     h, s = 9, 5
     color = rng.random((h, w, s, 3)) * rng.choice([0.5, 4.0], (h, w, 1, 1)) * scale
     ma, mb = (color.mean(2) + 0.2 * scale * rng.random((h, w, 3)) for _ in range(2))
     m = 0.5 * (ma + mb)
     m[h // 2, :] += 0.8 * scale  # a biased row: the bias estimate and the weight vary across it
-    img, err = _run(device, color, m, ma, mb, mode, vw, z7)
-    want_img, want_err = sg.reference(color.astype(np.float32), m.astype(np.float32),
-                                      ma.astype(np.float32), mb.astype(np.float32), mode=mode,
-                                      z7=z7)
-    if z7:  # the test changes the image: the case can tell a kernel that ignores it
-        other, _ = sg.reference(color.astype(np.float32), m.astype(np.float32),
-                                ma.astype(np.float32), mb.astype(np.float32), mode=mode)
+    if w > 16:
+        m[1, w // 2] += 3.0 * scale  # and one pixel's (the 3x3 test's)
+    img, err = _run(device, color, m, ma, mb, mode, vw, z7, test3)
+    f32 = [x.astype(np.float32) for x in (color, m, ma, mb)]
+    want_img, want_err = sg.reference(*f32, mode=mode, z7=z7, test3=test3)
+    if mode == sg.MODE_BLEND and z7:
+        # each test changes the image: the case can tell a kernel that ignores it
+        other, _ = sg.reference(*f32, mode=mode, test3=test3)
         assert np.abs(other - want_img).max() > 1e-3 * float(np.abs(want_img).max())
+    if w > 16 and z7:  # the error estimate (and the blend's image) move with the 3x3 test
+        other_img, other_err = sg.reference(*f32, mode=mode, z7=z7, test3=not test3)
+        assert np.abs(other_err - want_err).max() > 1e-3 * float(np.abs(want_err).max())
+        if mode == sg.MODE_BLEND:
+            assert np.abs(other_img - want_img).max() > 1e-3 * float(np.abs(want_img).max())
     scale = float(np.abs(want_img).max())
     assert_close(img, want_img, rtol=1e-4, atol=1e-5 * scale, what=f"image vw={vw} w={w}")
     # the error image is float32: below its subnormals (a 1e-30 frame's ~1e-61) it is 0
@@ -160,3 +169,12 @@ def test_below_16_spp_nothing_is_measured():
     assert not measures_convergence(15) and measures_convergence(16)
     rng = np.random.default_rng(3)
     assert variance_scale(_stratified_colours(rng, 4, 4, 15, iid=False)) == 1.0
+
+
+def test_bias_test3_rule():
+    """The 3x3 test: always on a method's own halves; on the guided chain's from halves of
+    MIN_TEST3_HALF samples (8 spp: halves of 4 and 4; 7 spp's are 3 and 4)."""
+    from clrecon.methods.safeguard_passes import MIN_TEST3_HALF, bias_test3
+    assert MIN_TEST3_HALF == 4
+    assert all(bias_test3(False, s) for s in range(2, 70))
+    assert [s for s in range(2, 20) if not bias_test3(True, s)] == [2, 3, 4, 5, 6, 7]
