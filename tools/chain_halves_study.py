@@ -12,7 +12,7 @@ of the trade), each run on the device, the rest in float64 on the host:
 * ``--blend``: on one frame per scene and spp (``seed = 100 + spp``, as ``clrecon trade``),
   PSNR of box, of ``m`` alone (no safeguard), of the final blend with and without its 3x3
   test (``3x3 test``, ``no 3x3``: the chain's 7x7 test at 2 standard errors alone; the
-  library runs the first from 8 spp and the second below, ``bias_test3``; the host's blend
+  library runs the first from 8 spp and the second below, ``bias_tests``; the host's blend
   is checked against the device's image), of one estimator change and of one bound:
   ``w other seed``: the ``3x3 test`` weights from an independent frame applied to this one
   (what the dependence between a frame's weights and its own box noise costs);
@@ -42,7 +42,7 @@ from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_passes import bias_test3
+from clrecon.methods.safeguard_passes import bias_tests
 from clrecon.methods.safeguard_reference import (
     _lum2,
     _window_count,
@@ -144,7 +144,7 @@ def blend(dev, scenes, size: int, spps) -> list[str]:
             box, m = (ha * a + hb * b) / s, (ha * ma + hb * mb) / s
             img, w = _blend(a, b, ha, hb, ma, mb, vs, True)
             no3 = _blend(a, b, ha, hb, ma, mb, vs, False)[0]
-            lib = img if bias_test3(True, spp) else no3  # what the library runs
+            lib = img if bias_tests(True, spp)[1] else no3  # what the library runs
             if abs(psnr(lib.astype(np.float32), ref) - psnr(got.astype(np.float32), ref)) > .02:
                 raise AssertionError(f"{name} {spp}: the host's blend is not the device's")
             w_other = _blend(*frames[1][3:5], ha, hb, *frames[1][1:3], frames[1][7], True)[1]

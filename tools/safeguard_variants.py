@@ -17,9 +17,16 @@ the device's own image to 0.02 dB). A variant changes one thing:
   :func:`clrecon.methods.safeguard_reference.variance_scale`; here from 4 spp);
 * ``se7 1`` / ``se7 2``: the 7x7 mean of ``e`` only where it stands 1 / 2 standard errors
   above zero, as the 3x3 one does;
-* ``shrink7``: the 7x7 mean shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)``.
+* ``shrink7``: the 7x7 mean shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)``;
+* ``no 3x3``: the bias term without its 3x3 test (the 7x7 mean alone); ``se7 2 no 3x3``:
+  the 7x7 mean tested at 2 standard errors alone, as the guided chain's blend runs below
+  8 spp (``safeguard_passes.bias_tests``); ``untested 7x7``: the 7x7 mean as it comes (the
+  library's from 8 spp, and below 8 spp until 2026-12-07).
 
-None of these constants is fitted to the scenes; the variants are measured, not shipped.
+``shipped`` is the library's estimator at the frame's sample count (below 8 spp its 7x7
+mean is tested at 2 standard errors: ``safeguard_passes.bias_tests``, since 2026-12-07, when
+``se7 2`` was this page's 4-spp winner); the others change one thing from the untested form.
+None of these constants is fitted to the scenes.
 Run: ``python tools/safeguard_variants.py [--size 128] [--spp 8,64] [--scenes ...]``.
 Samples ``seed = 2000 + spp``; references from the trusted device (PoCL).
 """
@@ -36,6 +43,7 @@ from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
+from clrecon.methods.safeguard_passes import bias_tests
 from clrecon.methods.safeguard_reference import (
     _lum2,
     _window_count,
@@ -47,7 +55,8 @@ from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_reference, render_samples
 
-VARIANTS = ("shipped", "pixel 3sd", "strat", "strat frame", "se7 1", "se7 2", "shrink7")
+VARIANTS = ("shipped", "pixel 3sd", "strat", "strat frame", "se7 1", "se7 2", "shrink7",
+            "no 3x3", "se7 2 no 3x3", "untested 7x7")
 METHODS = ("sweep", "layered", "splat")
 
 
@@ -89,10 +98,12 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np
     mu3, se3 = _se(e, 1)
     mu7, se7 = _se(e, 3)
     rel = np.divide(se7, mu7, out=np.full_like(mu7, np.inf), where=mu7 > 0)  # se7 / mu7
-    t7 = {"se7 1": mu7 - se7, "se7 2": mu7 - 2 * se7,
+    test7, _ = bias_tests(False, s)  # the library's own tests of a method's halves
+    t7 = {"se7 1": mu7 - se7, "se7 2": mu7 - 2 * se7, "se7 2 no 3x3": mu7 - 2 * se7,
+          "untested 7x7": mu7,
           "shrink7": np.where(mu7 > 0, mu7 * np.maximum(0.0, 1.0 - rel * rel), 0.0)
-          }.get(variant, mu7)
-    b2 = np.maximum(0.0, np.maximum(t7, mu3 - 2.0 * se3))
+          }.get(variant, mu7 - 2 * se7 if test7 else mu7)
+    b2 = np.maximum(0.0, t7 if variant.endswith("no 3x3") else np.maximum(t7, mu3 - 2.0 * se3))
     vm3 = _window_mean(vm, 1)
     vbw = np.maximum(_window_mean(vb, 1), _window_mean(vb, 3))
     if variant == "pixel 3sd":

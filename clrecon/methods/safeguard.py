@@ -24,8 +24,8 @@ radiance averaged over RGB:
   (a bias is coherent in space, noise is not), and over 3x3 where that mean stands two
   standard errors above zero (a bias along a thin edge, which the wider window dilutes; the
   noise of the 3x3 mean alone would otherwise pull the image toward box at low spp):
-  ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))`` (the guided chain: ``GUIDED_Z7``,
-  ``bias_test3``);
+  ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))`` (below 8 spp and with the guided
+  refinement the windows are tested differently: ``bias_tests``);
 * the method's error is ``err_m = b2 + mean3(vm)``; the weight that minimises the expected
   squared error of ``box + w (m - box)`` when the two errors are independent is
   ``w = vb / (vb + err_m)``, and the blend's error ``w^2 err_m + (1 - w)^2 vb``. Here ``vb``
@@ -84,7 +84,7 @@ from clrecon.methods import nlm as nl
 from clrecon.methods.guided import GuidedPasses, check_radius
 from clrecon.methods.safeguard_passes import (
     SafeguardPasses,
-    bias_test3,
+    bias_tests,
     halves,
     measures_convergence,
 )
@@ -101,7 +101,7 @@ from clrecon.methods.safeguard_reference import (  # noqa: E402
 
 #: with the guided refinement the blend tests its 7x7 bias mean at 2 standard errors too (its
 #: regression removes the bias coherent over its windows: an untested 7x7 mean mostly sees
-#: noise there, and its max with 0 pulls the image toward box); its 3x3 test: bias_test3
+#: noise there, and its max with 0 pulls the image toward box); below 8 spp: bias_tests
 GUIDED_Z7 = 2.0
 
 
@@ -357,11 +357,11 @@ class Safeguarded(Pipeline):
         def run(queue, f, wait_for):
             b = f.buffers
             m = b["m"] if self.mode != MODE_BOX else b["box"]
+            t7, t3 = bias_tests(bool(self.guided), f.spp)
             return self.passes.run_blend(queue, b["stats"], b["rows"], b["box"], m,
                                          b["out"], b["error"], f.width, f.height, self.mode, 1,
-                                         wait_for, GUIDED_Z7 if self.guided else 0.0,
-                                         b["sg_scale"] if self.scaled else None,
-                                         bias_test3(bool(self.guided), f.spp))
+                                         wait_for, GUIDED_Z7 if t7 else 0.0,
+                                         b["sg_scale"] if self.scaled else None, t3)
         return run
 
     # -- protocol ----------------------------------------------------------------------------

@@ -22,9 +22,9 @@ STAT_PLANES = 5
 #: the fewest samples a quarter (half a half) holds for the sampler's convergence to be
 #: measured (:func:`measures_convergence`): from 16 spp
 MIN_QUARTER = 4
-#: the fewest samples a half holds for the guided chain's blend to test the 3x3 bias mean
-#: (:func:`bias_test3`): from 8 spp, the count that :data:`MIN_QUARTER` asks of a quarter
-MIN_TEST3_HALF = 4
+#: the fewest samples a half holds for the blend's bias term to take its windows' means as
+#: they come (:func:`bias_tests`): from 8 spp, the count :data:`MIN_QUARTER` asks of a quarter
+MIN_TEST_HALF = 4
 #: the row segments' planes: vb3, vm3, e3, ee3 (3 wide), e7, vb7, e3max, e7max, ee7 (7 wide)
 ROW_PLANES = 9
 #: padding columns on each side of the statistics' planes (the 7-wide window's reach)
@@ -43,14 +43,23 @@ def measures_convergence(spp: int) -> bool:
     return halves(int(spp))[0] // 2 >= MIN_QUARTER
 
 
-def bias_test3(guided: bool, spp: int) -> bool:
-    """Whether the blend's bias term tests the 3x3 mean (a bias along a thin edge): always for
-    a method's own halves; for the guided chain's (whose 7x7 mean is tested too) only where
-    each half holds :data:`MIN_TEST3_HALF` samples or more. With fewer the test fires on
-    noise more than on edges: without it the chain gained 0.15-0.59 dB at 4 spp on every
-    built-in scene at 512x512, and lost up to 0.27 dB at 32-64 spp, where it is kept
-    (``docs/measurements/chain-safeguard-pocl.md``)."""
-    return not guided or min(halves(int(spp))) >= MIN_TEST3_HALF
+def bias_tests(guided: bool, spp: int) -> tuple[bool, bool]:
+    """``(test7, test3)`` of the blend's bias term: whether its 7x7 mean must stand 2
+    standard errors above zero (``safeguard.GUIDED_Z7``), and whether it keeps the 3x3 mean
+    where that stands 2 standard errors above zero (a bias along a thin edge).
+
+    From halves of :data:`MIN_TEST_HALF` samples (8 spp) a method's own halves take the
+    7x7 mean untested and the guided chain's test it; both keep the 3x3 test. Below, the
+    windows' means of 2-3-sample halves are mostly noise, whose positive part pulls the
+    image toward a box 10-20 dB worse: every method tests its 7x7 mean, and the guided
+    chain leaves the 3x3 test out. Measured at 4 spp on the six blurred built-in scenes
+    (``docs/measurements/safeguard-lowspp-pocl.md``, ``chain-safeguard-pocl.md``): the
+    defaults +0.02 to +2.6 dB in 33 of 36 cells at 256x256 and 512x512 (spheres: layered
+    -0.16 and -0.20, splat -0.08 at 256x256), the guided chain +0.15 to +0.59 dB on every
+    scene; at 8 spp the same tests cost on fence and spheres, so from 8 spp nothing
+    changes."""
+    low = min(halves(int(spp))) < MIN_TEST_HALF
+    return bool(guided) or low, not (guided and low)
 
 
 def vector_width(context: cl.Context) -> int:
@@ -144,7 +153,7 @@ class SafeguardPasses:
         """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
         ("safeguard_blend", ev)]. ``z7 > 0``: the 7x7 bias mean is tested at ``z7``
         standard errors, as the 3x3 one at 2; ``test3=False``: the bias term leaves the
-        3x3 test out (:func:`bias_test3`). ``vscale``: the halves' variances' factor
+        3x3 test out (:func:`bias_tests`). ``vscale``: the halves' variances' factor
         (:meth:`run_ratio`'s buffer; None: 1)."""
         ev = self.run_rows(queue, stats, rows, w, h, wait_for, vscale)
         return [("safeguard_rows", ev), ("safeguard_blend", self.run_blend_only(

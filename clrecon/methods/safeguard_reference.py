@@ -82,7 +82,7 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     ``mode`` is the blend). ``z7 > 0``: the 7x7 bias mean must stand ``z7`` standard errors
     above zero (the guided refinement's chain), as the 3x3 mean must stand 2. ``vscale``:
     the factor of the halves' variances (:func:`variance_scale`; 1: independent samples).
-    ``test3=False``: the bias term leaves the 3x3 test out (``safeguard_passes.bias_test3``)."""
+    ``test3=False``: the bias term leaves the 3x3 test out (``safeguard_passes.bias_tests``)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     s = ha + hb
     box = (ha * a + hb * b) / s

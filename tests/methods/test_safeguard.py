@@ -15,6 +15,7 @@ from clrecon.core.camera import CocModel
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import SampleBuffer
 from clrecon.methods import safeguard as sg
+from clrecon.methods.safeguard_passes import bias_tests
 
 
 def _half(buf: SampleBuffer, sl: slice) -> SampleBuffer:
@@ -38,7 +39,9 @@ def _expected(buf, method, device, mode):
         ma, mb = (run(h, method=method, device=device, **knobs).image for h in halves)
     if mode == sg.MODE_BLEND and METHODS[method].halves_mean:
         m = None
-    return sg.reference(buf.color, m, ma, mb, mode=mode)
+    test7, test3 = bias_tests(False, buf.spp)  # below 8 spp the 7x7 mean is tested
+    return sg.reference(buf.color, m, ma, mb, mode=mode, z7=sg.GUIDED_Z7 if test7 else 0.0,
+                        test3=test3)
 
 
 def _shared_halves(buf, halves, method, device):

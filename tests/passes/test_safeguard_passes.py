@@ -60,7 +60,7 @@ CASES = [(vw, w, mode, 1.0) for vw in (1, 4, 8, 16) for w in (5, 16, 17, 37)
 CASES += [(vw, 17, sg.MODE_BLEND, scale) for vw in (1, 16) for scale in (1e-30, 1e15)]
 CASES = [(*c, 0.0, True) for c in CASES]
 # the 7x7 bias mean tested at 2 standard errors (the guided refinement's chain), with and
-# without the 3x3 test (bias_test3: the chain below 8 spp)
+# without the 3x3 test (bias_tests: the chain below 8 spp)
 CASES += [(vw, w, mode, scale, 2.0, t3) for vw in (1, 8, 16) for w in (5, 37)
           for scale in (1.0, 1e15) for mode, t3 in ((sg.MODE_BLEND, True),
                                                     (sg.MODE_BLEND, False),
@@ -171,10 +171,14 @@ def test_below_16_spp_nothing_is_measured():
     assert variance_scale(_stratified_colours(rng, 4, 4, 15, iid=False)) == 1.0
 
 
-def test_bias_test3_rule():
-    """The 3x3 test: always on a method's own halves; on the guided chain's from halves of
-    MIN_TEST3_HALF samples (8 spp: halves of 4 and 4; 7 spp's are 3 and 4)."""
-    from clrecon.methods.safeguard_passes import MIN_TEST3_HALF, bias_test3
-    assert MIN_TEST3_HALF == 4
-    assert all(bias_test3(False, s) for s in range(2, 70))
-    assert [s for s in range(2, 20) if not bias_test3(True, s)] == [2, 3, 4, 5, 6, 7]
+def test_bias_tests_rule():
+    """From halves of MIN_TEST_HALF samples (8 spp: 4 and 4; 7 spp's are 3 and 4) a method's
+    own halves test neither window beyond the 3x3's 2 standard errors and the guided chain's
+    test the 7x7 mean too; below, every blend tests the 7x7 mean and the guided chain leaves
+    the 3x3 test out."""
+    from clrecon.methods.safeguard_passes import MIN_TEST_HALF, bias_tests
+    assert MIN_TEST_HALF == 4
+    for s in range(2, 70):
+        low = s < 8
+        assert bias_tests(False, s) == (low, True), s
+        assert bias_tests(True, s) == (True, not low), s
