@@ -54,7 +54,7 @@ def bias_tests(guided: bool, spp: int) -> tuple[bool, bool]:
     image toward a box 10-20 dB worse: every method tests its 7x7 mean, and the guided
     chain leaves the 3x3 test out. Measured at 4 spp on the six blurred built-in scenes
     (``docs/measurements/safeguard-lowspp-pocl.md``, ``chain-safeguard-pocl.md``): the
-    defaults +0.02 to +2.6 dB in 33 of 36 cells at 256x256 and 512x512 (spheres: layered
+    defaults +0.01 to +2.6 dB in 33 of 36 cells at 256x256 and 512x512 (spheres: layered
     -0.16 and -0.20, splat -0.08 at 256x256), the guided chain +0.15 to +0.59 dB on every
     scene; at 8 spp the same tests cost on fence and spheres, so from 8 spp nothing
     changes."""
