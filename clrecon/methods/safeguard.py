@@ -47,10 +47,9 @@ convergence holds from half to frame; below 16 spp the quarters are too few to s
 As samples grow, ``vb`` falls like box's error while a method's bias does not: ``w`` goes to
 0 and the image to box's (consistent); where the method is unbiased ``w`` stays near 1.
 
-Range: colours reach 1e30, whose squares overflow float32; the kernels keep each pixel's
-statistics in units of its own binary exponent and rescale a window to its largest before
-adding: the image is exact at any valid colour, the error saturates at FLT_MAX (colours
-above ~1e19).
+Range: colours reach 1e30 (squares overflow float32): the kernels keep each pixel's statistics
+in units of its own binary exponent, rescaled to a window's largest before adding: the
+image is exact at any valid colour, the error saturates at FLT_MAX (colours above ~1e19).
 
 The method's image. A method whose weights do not depend on the sample count
 (``Pipeline.halves_mean``: all three) blends the mean of its halves' images,
@@ -373,13 +372,14 @@ class Safeguarded(Pipeline):
         d = dict(self.full.describe())
         d["safeguard"] = self.mode == MODE_BLEND
         if self.guided:
-            d["guided"] = self.guided
-            d["guide_blend"] = self.guide_blend
+            d["guided"], d["guide_blend"] = self.guided, self.guide_blend
         if self.nlm:
             d["nlm"], d["nlm_scales"] = self.nlm, self._flags["nlm_scales"]
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True
+        t7, t3 = bias_tests(bool(self.guided), self.info.spp)  # the frame's spp: the plan's
+        d["safeguard_bias_tests"] = {"7x7 at 2 se": t7, "3x3 at 2 se": t3}
         if self.scaled:
             d["safeguard_convergence"] = "measured (the halves' variances scaled by it)"
         if self.halves_mean:
