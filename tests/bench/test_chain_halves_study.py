@@ -4,19 +4,15 @@ unbiased one, and each study end to end on a tiny frame (where the blend study c
 host blend against the device's own image)."""
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from tool_module import load_tool
 
 from clrecon.scenes import render
 
-_PATH = Path(__file__).resolve().parents[2] / "tools" / "chain_halves_study.py"
-_spec = importlib.util.spec_from_file_location("chain_halves_study", _PATH)
-ch = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ch)
+ch = load_tool("chain_halves_study")
 
 
 def _frame(rng, h=15, w=17, s=4):

@@ -3,18 +3,14 @@ against plain loops, and one tiny scene end to end, whose oracles must bound eve
 (a selection by the true error cannot lose to any one of its candidates)."""
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
+from tool_module import load_tool
 
 from clrecon.scenes import render
 
-_PATH = Path(__file__).resolve().parents[2] / "tools" / "hybrid_bound.py"
-_spec = importlib.util.spec_from_file_location("hybrid_bound", _PATH)
-hb = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(hb)
+hb = load_tool("hybrid_bound")
 
 
 def test_window_mean_is_the_edge_padded_window_average(rng):

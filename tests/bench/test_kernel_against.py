@@ -3,23 +3,18 @@ the working tree's, and a tiny frame runs end to end (the same source at HEAD an
 tree when the file is unchanged: bit-identical images)."""
 from __future__ import annotations
 
-import importlib.util
 import subprocess
-from pathlib import Path
 
 import pytest
+from tool_module import ROOT, load_tool
 
 from clrecon.core.build import kernel_source
 
-_ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location("kernel_against",
-                                               _ROOT / "tools" / "kernel_against.py")
-ka = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ka)
+ka = load_tool("kernel_against")
 
 
 def _in_git() -> bool:
-    r = subprocess.run(["git", "rev-parse", "HEAD"], cwd=_ROOT, capture_output=True)
+    r = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True)
     return r.returncode == 0
 
 
@@ -47,5 +42,5 @@ def test_tiny_frame_end_to_end(tmp_path, device):
     text = page.read_text()
     assert "| tile_stats |" in text and "| **total** |" in text
     if not subprocess.run(["git", "diff", "--quiet", "HEAD", "--", "kernels/tile_stats.cl"],
-                          cwd=_ROOT).returncode:
+                          cwd=ROOT).returncode:
         assert "bit-identical: True" in text

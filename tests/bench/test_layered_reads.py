@@ -3,18 +3,13 @@ the NumPy reference's own block pick, clipped windows included), and a tiny fram
 end."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from tool_module import load_tool
 
 from clrecon.methods.layered.reference import row_hash
 
-_PATH = Path(__file__).resolve().parents[2] / "tools" / "layered_reads.py"
-_spec = importlib.util.spec_from_file_location("layered_reads", _PATH)
-lr = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(lr)
+lr = load_tool("layered_reads")
 
 
 def brute_force(x0, y0, tile, reach, sub, w, h):

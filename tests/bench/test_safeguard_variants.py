@@ -3,20 +3,16 @@ the safeguard's NumPy reference, each variant moves only what it names, and one 
 end to end (where the script checks ``shipped`` against the device's own image)."""
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from tool_module import load_tool
 
 from clrecon.methods import safeguard as sg
 from clrecon.scenes import render
 
-_PATH = Path(__file__).resolve().parents[2] / "tools" / "safeguard_variants.py"
-_spec = importlib.util.spec_from_file_location("safeguard_variants", _PATH)
-sv = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(sv)
+sv = load_tool("safeguard_variants")
 
 
 def _halves(rng, h=11, w=13, s=8):

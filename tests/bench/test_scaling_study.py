@@ -3,20 +3,17 @@ page, plots and JSON, its numbers are sane, the blur family hits the asked maxim
 budget rule skips instead of timing. No timing is asserted: only that times are positive."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 from pathlib import Path
 
 import pytest
+from tool_module import load_tool
 
 from clrecon.bench.scaling import render_blur_frame, scaled_scene
 from clrecon.scenes import get_scene
 
-_PATH = Path(__file__).resolve().parents[2] / "tools" / "scaling_study.py"
-_spec = importlib.util.spec_from_file_location("scaling_study", _PATH)
-study = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(study)
+study = load_tool("scaling_study")
 
 PLOTS = ("resolution", "blur", "spp", "shares", "bandwidth")
 

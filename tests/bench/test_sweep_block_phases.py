@@ -3,15 +3,11 @@ kernel as it is (a cut that silently stopped applying would time the whole kerne
 phase's name), each cut removes what it names, and one tiny frame end to end."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
+from tool_module import load_tool
 
 from clrecon.core.build import kernel_source
 
-_PATH = Path(__file__).resolve().parents[2] / "tools" / "sweep_block_phases.py"
-_spec = importlib.util.spec_from_file_location("sweep_block_phases", _PATH)
-sbp = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(sbp)
+sbp = load_tool("sweep_block_phases")
 
 
 def test_every_cut_applies_to_the_current_kernel_and_removes_its_phase():

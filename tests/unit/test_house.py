@@ -2,14 +2,12 @@
 counted), and no source file over tools/house.py's MAX_LINES."""
 from __future__ import annotations
 
-import importlib.util
 import textwrap
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location("house", ROOT / "tools" / "house.py")
-house = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(house)
+from tool_module import load_tool
+
+house = load_tool("house")
 
 
 def test_no_import_cycle():
