@@ -45,7 +45,6 @@ from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard_passes import bias_tests
 from clrecon.methods.safeguard_reference import (
     _lum2,
-    _window_count,
     _window_mean,
     halves,
     reference_of_halves,
@@ -107,23 +106,11 @@ def variances(dev, scenes, size: int, spp: int, seeds: int) -> list[str]:
 
 
 def _blend(a, b, ha, hb, ma, mb, vscale: float, with_3x3: bool):
-    """The shipped blend's image (with the chain's 7x7 test at 2 standard errors), or the
-    same without its 3x3 test; and its weights."""
-    if with_3x3:
-        img, _, w = reference_of_halves(a, b, ha, hb, None, ma, mb, sg.MODE_BLEND,
-                                        sg.GUIDED_Z7, vscale)
-        return img, w
-    s, k = ha + hb, ha * hb / (ha + hb) ** 2
-    box, m = (ha * a + hb * b) / s, (ha * ma + hb * mb) / s
-    vb, vm = vscale * k * _lum2(a - b), vscale * k * _lum2(ma - mb)
-    e = _lum2(m - box) - vm - vb
-    mu7 = _window_mean(e, 3)
-    se7 = np.sqrt(np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0)
-                  / _window_count(e.shape, 3))
-    vbw = np.maximum(_window_mean(vb, 1), _window_mean(vb, 3))
-    den = vbw + np.maximum(0.0, mu7 - sg.GUIDED_Z7 * se7) + _window_mean(vm, 1)
-    w = np.where(den > 0, vbw / np.where(den > 0, den, 1.0), 0.0)
-    return box + w[..., None] * (m - box), w
+    """The chain's blend (its 7x7 test at 2 standard errors) with or without its 3x3 test
+    (the safeguard's reference, ``test3``): its image and its weights."""
+    img, _, w = reference_of_halves(a, b, ha, hb, None, ma, mb, sg.MODE_BLEND, sg.GUIDED_Z7,
+                                    vscale, with_3x3)
+    return img, w
 
 
 def blend(dev, scenes, size: int, spps) -> list[str]:

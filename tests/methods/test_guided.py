@@ -8,7 +8,7 @@ import pyopencl as cl
 import pytest
 from conftest import assert_close, trusted_reference
 from layered_frames import frame
-from pipeline_run import read_buffer, run_plan
+from pipeline_run import check_off_and_still, check_refusals, read_buffer, run_plan
 
 from clrecon.api import make_pipeline, run
 from clrecon.core.pipeline import DeviceSamples
@@ -66,25 +66,13 @@ def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend
 
 
 def test_knob_contract(device, rng):
-    buf = frame(rng, h=12, w=12, s=4)
-    with pytest.raises(ValueError, match="box has no image"):
-        run(buf, method="box", device=device, guided=2)
-    for bad in (-1, 9, 2.5, True, "2"):
-        with pytest.raises(ValueError, match="guided: the window radius"):
-            run(buf, method="layered", device=device, guided=bad)
+    buf, one = frame(rng, h=12, w=12, s=4), frame(rng, h=12, w=12, s=1)
+    check_refusals(device, buf, one, "layered", "guided", 2, (-1, 9, 2.5, True, "2"),
+                   "guided: the window radius")
     with pytest.raises(ValueError, match="guide_blend"):
         run(buf, method="layered", device=device, guided=2, guide_blend="yes")
-    one = frame(rng, h=12, w=12, s=1)
-    with pytest.raises(ValueError, match="guided: needs >= 2 samples"):
-        run(one, method="layered", device=device, guided=2)
-    # off is the method as it was, bit for bit
-    a = run(buf, method="layered", device=device).image
-    b = run(buf, method="layered", device=device, guided=0).image
-    assert np.array_equal(a, b)
-    # a frame without blur is planned as box: nothing to refine, the image is box's
-    still = frame(rng, h=12, w=12, s=4, motion=False, aperture=0.0)
-    img = run(still, method="layered", device=device, guided=2).image
-    assert_close(img, still.color.mean(2), rtol=1e-5, atol=1e-6, what="box plan")
+    # off is the method as it was; a frame without blur: nothing to refine, box's image
+    check_off_and_still(device, rng, buf, "layered", "guided", 2)
 
 
 @pytest.mark.parametrize("method, knobs", [("layered", {"guide_blend": False}),

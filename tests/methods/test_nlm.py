@@ -10,7 +10,7 @@ import pytest
 from conftest import assert_close, trusted_reference
 from extremes import CASES, check_output, make_frame
 from layered_frames import frame
-from pipeline_run import read_buffer, run_plan
+from pipeline_run import check_off_and_still, check_refusals, read_buffer, run_plan
 
 from clrecon.api import run
 from clrecon.core.pipeline import DeviceSamples
@@ -63,28 +63,16 @@ def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp
 
 
 def test_knob_contract(device, rng):
-    buf = frame(rng, h=12, w=12, s=4)
-    with pytest.raises(ValueError, match="nlm: box has no image"):
-        run(buf, method="box", device=device, nlm=2)
-    for bad in (-1, 11, 2.5, True, "2"):
-        with pytest.raises(ValueError, match="nlm: the search radius"):
-            run(buf, method="splat", device=device, nlm=bad)
+    buf, one = frame(rng, h=12, w=12, s=4), frame(rng, h=12, w=12, s=1)
+    check_refusals(device, buf, one, "splat", "nlm", 2, (-1, 11, 2.5, True, "2"),
+                   "nlm: the search radius", safeguard=False)
     with pytest.raises(ValueError, match="nlm_scales: 3 scales of the non-local means need"):
         run(buf, method="splat", device=device, nlm_scales=3)
     for bad in (0, 7):
         with pytest.raises(ValueError, match="nlm_scales"):
             run(buf, method="splat", device=device, nlm=2, nlm_scales=bad)
-    one = frame(rng, h=12, w=12, s=1)
-    with pytest.raises(ValueError, match="nlm: needs >= 2 samples"):
-        run(one, method="splat", device=device, nlm=2, safeguard=False)
-    # off is the method as it was, bit for bit
-    a = run(buf, method="splat", device=device, guided=2).image
-    b = run(buf, method="splat", device=device, guided=2, nlm=0).image
-    assert np.array_equal(a, b)
-    # a frame without blur is planned as box: nothing to filter, the image is box's
-    still = frame(rng, h=12, w=12, s=4, motion=False, aperture=0.0)
-    img = run(still, method="splat", device=device, nlm=2).image
-    assert_close(img, still.color.mean(2), rtol=1e-5, atol=1e-6, what="box plan")
+    # off is the method as it was; a frame without blur: nothing to filter, box's image
+    check_off_and_still(device, rng, buf, "splat", "nlm", 2, guided=2)
 
 
 def test_filter_gains_on_a_builtin_scene(device):

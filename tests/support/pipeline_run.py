@@ -1,12 +1,15 @@
 """One run of a plan on a host frame, and its temporaries read back: what the tests of the
 steps inside the safeguard (the guided refinement, the non-local means) compare with their
-NumPy references."""
+NumPy references; and the part of those steps' knob contracts they share."""
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
+import pytest
+from conftest import assert_close
+from layered_frames import frame
 
-from clrecon.api import make_pipeline
+from clrecon.api import make_pipeline, run
 from clrecon.core.pipeline import DeviceSamples
 
 
@@ -29,3 +32,28 @@ def read_buffer(pipe, queue, name: str, shape) -> np.ndarray:
     a = np.empty(shape, np.float32)
     cl.enqueue_copy(queue, a, pipe.buffer(name))
     return a
+
+
+def check_off_and_still(device, rng, buf, method: str, knob: str, on, **base):
+    """A step's knob off (``knob=0``) is ``method`` with ``base`` as it was, bit for bit;
+    on (``on``), a frame without blur (planned as box) gives box's image."""
+    a = run(buf, method=method, device=device, **base).image
+    b = run(buf, method=method, device=device, **base, **{knob: 0}).image
+    assert np.array_equal(a, b)
+    still = frame(rng, h=12, w=12, s=4, motion=False, aperture=0.0)
+    img = run(still, method=method, device=device, **{knob: on}).image
+    assert_close(img, still.color.mean(2), rtol=1e-5, atol=1e-6, what="box plan")
+
+
+def check_refusals(device, buf, one, method: str, knob: str, on, bad, radius_msg: str,
+                   **one_knobs):
+    """A step's knob: box has no image to give it; each of ``bad`` is refused with
+    ``radius_msg``; ``one`` (a frame of one sample a pixel) is refused: the step needs two
+    halves."""
+    with pytest.raises(ValueError, match=f"{knob}: box has no image"):
+        run(buf, method="box", device=device, **{knob: on})
+    for b in bad:
+        with pytest.raises(ValueError, match=radius_msg):
+            run(buf, method=method, device=device, **{knob: b})
+    with pytest.raises(ValueError, match=f"{knob}: needs >= 2 samples"):
+        run(one, method=method, device=device, **{knob: on}, **one_knobs)
