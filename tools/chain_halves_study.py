@@ -46,9 +46,9 @@ from clrecon.methods.safeguard_passes import bias_tests
 from clrecon.methods.safeguard_reference import (
     _lum2,
     _window_mean,
-    frame_scale,
     halves,
     reference_of_halves,
+    variance_scale,
 )
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
@@ -124,7 +124,7 @@ def blend(dev, scenes, size: int, spps) -> list[str]:
             for seed in (100 + spp, 7777 + spp):
                 buf = render_samples(get_scene(name), size, size, spp, seed=seed, device=dev)
                 got, ma, mb, a, b, ha, hb = run_halves(dev, buf, CHAIN)
-                vs = frame_scale(buf, (ha * ma + hb * mb) / (ha + hb))  # the library's
+                vs = variance_scale(buf.color)
                 frames.append((got, ma, mb, a, b, ha, hb, vs))
             got, ma, mb, a, b, ha, hb, vs = frames[0]
             s = ha + hb

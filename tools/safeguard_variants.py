@@ -49,7 +49,6 @@ from clrecon.methods.safeguard_reference import (
     _window_count,
     _window_mean,
     halves,
-    pixel_blur,
     variance_scale,
 )
 from clrecon.metrics import psnr
@@ -68,12 +67,9 @@ def _se(e: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
     return mu, np.sqrt(var / _window_count(e.shape, r))
 
 
-def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str,
-          blur=None) -> np.ndarray:
+def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np.ndarray:
     """The safeguard's image from the samples' colours (H, W, S, 3) and the method's halves'
-    images (H, W, 3), with the estimator ``variant`` (float64); ``blur``: the frame's
-    :func:`~clrecon.methods.safeguard_reference.pixel_blur` (the shipped factor measures
-    its blurred pixels' variance with it)."""
+    images (H, W, 3), with the estimator ``variant`` (float64)."""
     s = color.shape[2]
     ha, hb = halves(s)
     ma, mb = ma.astype(np.float64), mb.astype(np.float64)
@@ -95,8 +91,8 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str,
                     else _window_mean(v_half, 3) / np.maximum(_window_mean(v_quarter, 3), tiny),
                     0.0, 0.5)
         vb, vm = vb * 2 * r, vm * 2 * r
-    else:  # the shipped factor (1 below 16 spp; from 16 the quarters' and the blurred pixels')
-        vs = variance_scale(color, m, blur)
+    else:  # the shipped factor (1 below 16 spp; from 16, ``strat frame``'s own)
+        vs = variance_scale(color)
         vb, vm = vb * vs, vm * vs
     e = _lum2(m - box) - vm - vb
     mu3, se3 = _se(e, 1)
@@ -144,10 +140,7 @@ def measure(name: str, size: int, spp: int, dev) -> dict[str, dict[str, float]]:
         if imgs is None:
             continue
         got, ma, mb = imgs
-        cm = buf.coc_model
-        blur = pixel_blur(buf.depth, buf.motion, (cm.c0, cm.c1))
-        row = {v: psnr(blend(buf.color, ma, mb, v, blur).astype(np.float32), ref)
-               for v in VARIANTS}
+        row = {v: psnr(blend(buf.color, ma, mb, v).astype(np.float32), ref) for v in VARIANTS}
         if abs(row["shipped"] - psnr(got, ref)) > 0.02:
             raise AssertionError(f"{name} {spp} {method}: the host's shipped estimator gives "
                                  f"{row['shipped']:.3f} dB, the device {psnr(got, ref):.3f}")

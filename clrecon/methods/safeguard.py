@@ -2,8 +2,9 @@
 blend toward the box filter wherever the method's bias dominates (``kernels/safeguard.cl``).
 
 Why. The three papers' methods trade bias for variance once and for all: at 16-64 spp
-they fall below the per-pixel average (box), whose error is pure variance and keeps
-falling. A renderer expects a better image from more samples, and where it is wrong.
+their images stop improving and fall below the per-pixel average (box), whose error is pure
+variance and keeps falling. A renderer that adds samples expects a better image; it also
+wants to know where the image is wrong (to place its next samples).
 
 How. The frame's samples are split per pixel into two halves, A (samples ``0..ha-1``) and
 B (``ha..S-1``): two independent estimates of everything. The method runs on the frame
@@ -12,8 +13,10 @@ B (``ha..S-1``): two independent estimates of everything. The method runs on the
 the halves'. With ``k = ha hb / S^2`` (``1/4`` for equal halves), per pixel, in linear
 radiance averaged over RGB:
 
-* ``vb = k |boxA - boxB|^2`` estimates box's variance (its whole error: box is unbiased);
-  not the samples' spread, which overstates it for stratified samples (100x at 64 spp);
+* ``vb = k |boxA - boxB|^2`` estimates box's variance (its whole error: box is unbiased).
+  Independent halves, not the samples' spread: a renderer's samples are usually
+  stratified, and the spread of stratified samples overstates the variance of their mean
+  many times over (100x at 64 spp on the built-in scenes);
 * ``vm = k |mA - mB|^2`` estimates the method's variance (the halves' images differ by
   noise alone);
 * ``d2 = |m - box|^2`` has expectation ``bias^2 + var(m - box)``, so
@@ -32,35 +35,38 @@ radiance averaged over RGB:
   show the spread (without the 7x7 term the blend lost 2 dB on ``bokeh`` at 8 spp).
 
 The sampler's convergence. Halves measure the variance of a half's mean; ``k`` turns it
-into the frame's as if the samples were independent (``1/n``). Stratified samples converge
-faster, so ``vb`` and ``vm`` overstate the frame's variances and the blend keeps a biased
-method where box is already the better. From 16 spp (quarters of >= 4 samples) one factor
-``<= 1`` scales ``vb`` and ``vm`` everywhere (``kernels/safeguard_ratio.cl``): the quarters'
-``s = sum S vb / sum dq`` (``dq`` their squared difference per unit of ``1/n0 + 1/n1``;
-``s = 1`` for independent samples) assumes the quarter-to-half convergence from half to
-frame; where a pixel and its 8 neighbours have every sample blurred by >= 2 px, the true
-image is smooth there and ``m`` follows it, so ``|lap(box - m)|^2 / 20`` is box's own
-variance (each pixel's samples are its own): the factor is the frame's variance so
-measured over ``sum vb`` (blurred pixels measured, the others ``s vb``).
+into the frame's as if the samples were independent (variance ``1/n``). Stratified samples
+converge faster, so ``vb`` and ``vm`` overstate the frame's variances, and the blend keeps a
+biased method where box is already the better. From 16 spp (each half's two quarters hold
+>= 4 samples) the frame measures it: ``s = sum S vb / sum dq`` over its pixels, ``dq`` the
+quarters' squared difference per unit of their own ``1/n0 + 1/n1`` (both have the samples'
+variance as expectation for independent samples: ``s = 1``), clamped to [0, 1], scales
+``vb`` and ``vm`` everywhere (``safeguard_ratio``). It assumes the quarter-to-half
+convergence holds from half to frame; below 16 spp the quarters are too few to say.
 
-As samples grow ``vb`` falls, a method's bias does not: ``w`` goes to 0 (consistent).
+As samples grow, ``vb`` falls like box's error while a method's bias does not: ``w`` goes to
+0 and the image to box's (consistent); where the method is unbiased ``w`` stays near 1.
 
-Range: colours to 1e30 (squares overflow float32): each pixel's statistics are in units of
-its binary exponent, rescaled to a window's largest (the error saturates at FLT_MAX).
+Range: colours reach 1e30 (squares overflow float32): the kernels keep each pixel's statistics
+in units of its own binary exponent, rescaled to a window's largest before adding: the
+image is exact at any valid colour, the error saturates at FLT_MAX (colours above ~1e19).
 
 The method's image. A method whose weights do not depend on the sample count
 (``Pipeline.halves_mean``: all three) blends the mean of its halves' images,
 ``(ha mA + hb mB) / S``, in place of ``m``: its bias is the method's, its variance that of
 the frame's image (exactly for an estimator linear in the samples), and the frame's run is
-saved (measured against the frame's own image in the README). layered's ``shared_steps``
-(statistics, partition setup) run once on the frame and both halves filter those partitions.
+saved. layered's ``shared_steps`` (statistics, partition setup) run once on the frame and
+both halves filter those partitions (with their own, 0.39 dB lost on ``bokeh`` at 8 spp).
+Against the blend with the frame's own image (six blurred built-in scenes, 4-16 spp at
+512x512, 32-64 at 256x256): sweep -0.07 to +0.01 dB, splat -0.10 to +0.43, layered -0.13
+(bokeh, 64 spp) to +0.01.
 
 Cost: the method runs on both halves (layered's statistics and partitions on the frame),
 plus a split copy of the fields (none where its passes read each half in place,
-``Pipeline.sample_views``) and cheap passes (the statistics, the windowed means in two
-separable passes; from 16 spp the factor's). A method's ``joint_steps`` (layered's
-reproject) run once on the frame for both halves (one read of the samples; 300 MB more at
-720p 8 spp, off where B's buffers do not fit).
+``Pipeline.sample_views``) and three cheap passes (the statistics; the windowed means in
+two separable passes). A method's ``joint_steps`` (layered's reproject) run once on the
+frame for both halves, B's outputs apart: one read of the samples, not two views' (720p 8 spp,
+PoCL: layered's default 251 against 287 ms, 300 MB more; off where B's buffers do not fit).
 ``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports).
 """
 from __future__ import annotations
@@ -224,15 +230,11 @@ class Safeguarded(Pipeline):
                           ("box", "stats") + (("m",) if self.halves_mean else ()),
                           self._stats_step()))
         # from 16 spp the halves' variances are scaled by the sampler's measured convergence
-        # (and, where a pixel and its neighbours are blurred, by their own noise measured)
         self.scaled = measures_convergence(info.spp)
-        self.spatial = self.scaled and not is_box and "depth" in inner_fields
         if self.scaled:
-            temps |= {"sg_partial": self.passes.ratio_bytes(info.height), "sg_scale": 4,
-                      **({"sg_blur": npx * 4} if self.spatial else {})}
-            blur_in = ("box", "m", "depth") + (("motion",) if "motion" in inner_fields else ())
-            steps.append(Step("safeguard_ratio", ("stats",) + blur_in * self.spatial,
-                              ("sg_scale",), self._ratio_step()))
+            temps |= {"sg_partial": self.passes.ratio_bytes(info.height), "sg_scale": 4}
+            steps.append(Step("safeguard_ratio", ("stats",), ("sg_scale",),
+                              self._ratio_step()))
         steps.append(Step("safeguard_blend", ("stats", "box") + (() if is_box else ("m",))
                           + (("sg_scale",) if self.scaled else ()), ("out", "error"),
                           self._blend_step()))
@@ -344,14 +346,10 @@ class Safeguarded(Pipeline):
 
     def _ratio_step(self):
         def run(queue, f, wait_for):
-            b, evs, img = f.buffers, [], ()
-            if self.spatial:  # the pixels' blur, then the factor with the blurred pixels'
-                evs = [self.passes.run_blur(queue, b["depth"], b.get("motion"), b["sg_blur"],
-                                            f.width, f.height, f.spp, f.samples.coc, wait_for)]
-                wait_for, img = evs, (b["box"], b["m"], b["sg_blur"])
-            return [("safeguard_ratio", ev) for ev in evs + self.passes.run_ratio(
+            b = f.buffers
+            return [("safeguard_ratio", ev) for ev in self.passes.run_ratio(
                 queue, b["stats"], b["sg_partial"], b["sg_scale"], f.width, f.height, f.spp,
-                wait_for, *img)]
+                wait_for)]
         return run
 
     def _blend_step(self):
@@ -383,8 +381,7 @@ class Safeguarded(Pipeline):
         t7, t3 = bias_tests(bool(self.guided), self.info.spp)  # the frame's spp: the plan's
         d["safeguard_bias_tests"] = {"7x7 at 2 se": t7, "3x3 at 2 se": t3}
         if self.scaled:
-            d["safeguard_convergence"] = "measured (the halves' variances scaled by it)" + (
-                ", blurred pixels' from their own noise" if self.spatial else "")
+            d["safeguard_convergence"] = "measured (the halves' variances scaled by it)"
         if self.halves_mean:
             d["safeguard_image"] = "the mean of the halves' images"
         if self.joint:
@@ -394,7 +391,10 @@ class Safeguarded(Pipeline):
 
 
 def _unique(bounds):
-    first = {}
+    seen, out = set(), []
     for b in bounds:
-        first.setdefault((b.name, b.op, b.limit), b)
-    return tuple(first.values())
+        key = (b.name, b.op, b.limit)
+        if key not in seen:
+            seen.add(key)
+            out.append(b)
+    return tuple(out)

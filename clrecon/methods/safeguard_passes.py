@@ -84,7 +84,6 @@ class SafeguardPasses:
         self.blend = get_kernel(context, "safeguard", "safeguard_blend", defines)
         self.ratio_rows = get_kernel(context, "safeguard_ratio", "safeguard_ratio_rows")
         self.ratio = get_kernel(context, "safeguard_ratio", "safeguard_ratio")
-        self.blur = get_kernel(context, "safeguard_ratio", "safeguard_blur")
         #: the variances' factor where it is not measured: 1 (independent samples)
         self.one = cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                              hostbuf=np.ones(1, np.float32))
@@ -107,8 +106,8 @@ class SafeguardPasses:
 
     @staticmethod
     def ratio_bytes(height: int) -> int:
-        """The ratio's row sums: five floats a row."""
-        return 5 * int(height) * 4
+        """The ratio's row sums: three floats a row."""
+        return 3 * int(height) * 4
 
     # -- launches ----------------------------------------------------------------------------
     def split_field(self, queue, src, dst_a, dst_b, pixels, spp, width, wait_for=None):
@@ -137,31 +136,16 @@ class SafeguardPasses:
                             np.int32(bool(quarters)))
         return cl.enqueue_nd_range_kernel(queue, self.stats, (sp, h), None, wait_for=wait_for)
 
-    def run_blur(self, queue, depth, motion, blur, w, h, spp, coc, wait_for=None):
-        """Each pixel's smallest sample blur into ``blur`` (``w h`` floats): the samples'
-        least ``max(|c0 / z + c1|, |motion|)`` (``coc = (c0, c1)``; ``motion`` None: none)."""
-        self.blur.set_args(depth, depth if motion is None else motion,
-                           np.int32(motion is not None), np.int32(w * h), np.int32(spp),
-                           np.float32(coc[0]), np.float32(coc[1]), blur)
-        return cl.enqueue_nd_range_kernel(queue, self.blur, (int(w * h),), None,
-                                          wait_for=wait_for)
-
-    def run_ratio(self, queue, stats, partial, scale, w, h, spp, wait_for=None,
-                  box=None, m=None, blur=None):
+    def run_ratio(self, queue, stats, partial, scale, w, h, spp, wait_for=None):
         """The sampler's convergence from statistics written with ``quarters``: ``scale``
         (one float) = the frame's halves' squared difference over its quarters', per unit
-        of their independent-sample variances, clamped to [0, 1]; with the ``box`` and
-        method's ``m`` images and the pixels' ``blur`` (:meth:`run_blur`), the blurred
-        pixels' variance measured from the Laplacian of ``box - m`` in its place there
-        (``kernels/safeguard_ratio.cl``). Two launches, their events in order."""
-        spatial = m is not None
+        of their independent-sample variances, clamped to [0, 1]. Two launches, their
+        events in order."""
         self.ratio_rows.set_args(stats, partial, np.int32(w), np.int32(h),
-                                 np.int32(self.stats_pitch(w)), np.int32(spp),
-                                 *((box, m, blur) if spatial else (stats,) * 3),
-                                 np.int32(spatial))
+                                 np.int32(self.stats_pitch(w)), np.int32(spp))
         ev = cl.enqueue_nd_range_kernel(queue, self.ratio_rows, (int(h),), None,
                                         wait_for=wait_for)
-        self.ratio.set_args(partial, np.int32(h), np.int32(spp), scale)
+        self.ratio.set_args(partial, np.int32(h), scale)
         return [ev, cl.enqueue_nd_range_kernel(queue, self.ratio, (1,), None, wait_for=[ev])]
 
     def run_blend(self, queue, stats, rows, box, m, out, error, w, h, mode, write_error,

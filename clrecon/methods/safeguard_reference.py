@@ -35,33 +35,12 @@ def _window_count(shape, r: int) -> np.ndarray:
     return sum(ones[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
 
 
-#: px: a pixel whose samples, and its 8 neighbours', are all blurred at least this much has
-#: its variance measured from its own noise (``kernels/safeguard_ratio.cl``)
-BLUR_MIN = 2.0
-
-
-def pixel_blur(depth: np.ndarray, motion, coc) -> np.ndarray:
-    """Each pixel's smallest sample blur (H, W), float32: the least ``max(|c0 / z + c1|,
-    |motion|)`` of its samples (a non-finite value counts as 0; ``motion`` None: none)."""
-    c0, c1 = (np.float32(v) for v in coc)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        r = np.abs(c0 / np.asarray(depth, np.float32) + c1)
-        if motion is not None:
-            v = np.asarray(motion, np.float32)
-            r = np.maximum(r, np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1]))
-    return np.where(np.isfinite(r), r, np.float32(0)).min(2).astype(np.float32)
-
-
-def variance_scale(color: np.ndarray, m=None, blur=None) -> float:
+def variance_scale(color: np.ndarray) -> float:
     """The factor of the halves' variances, from the samples' colours (H, W, S, 3): 1 below
     16 spp (:func:`~clrecon.methods.safeguard_passes.measures_convergence`); else the
     frame's sum of the halves' squared differences over its quarters', each per unit of its
     independent-sample variance (``1/n0 + 1/n1``), clamped to [0, 1], or 1 where the
-    quarters show no spread (``safeguard_ratio``). With the method's image ``m`` (H, W, 3)
-    and :func:`pixel_blur` ``blur``: where a pixel and its 8 neighbours are blurred by
-    :data:`BLUR_MIN` or more, its variance is ``|lap(box - m)|^2 / 20`` (5-point Laplacian,
-    mean over RGB) in place of the scaled ``vb``: the factor is
-    ``(sum_blurred L + s (sum vb - sum_blurred vb)) / sum vb``, clamped to [0, 1]."""
+    quarters show no spread (``safeguard_ratio``)."""
     s = color.shape[2]
     if not measures_convergence(s):
         return 1.0
@@ -75,53 +54,22 @@ def variance_scale(color: np.ndarray, m=None, blur=None) -> float:
         dq = dq + 0.5 * _lum2(d) / (1 / n0 + 1 / (n - n0))
     sq = float(np.sum(dq))
     r = float(np.sum(dh)) / sq if sq > 0 else np.inf
-    f = float(np.clip(r, 0.0, 1.0)) if np.isfinite(r) else 1.0
-    if m is None or blur is None:
-        return f
-    h, w = dh.shape
-    res = c.mean(2) - np.asarray(m, np.float64)
-    lap = np.zeros_like(res)
-    lap[1:-1, 1:-1] = 4 * res[1:-1, 1:-1] - res[:-2, 1:-1] - res[2:, 1:-1] - res[1:-1, :-2] \
-        - res[1:-1, 2:]
-    b = np.asarray(blur, np.float64)
-    bmin = np.full((h, w), -np.inf)
-    if h > 2 and w > 2:
-        bmin[1:-1, 1:-1] = np.min([b[1 + dy:h - 1 + dy, 1 + dx:w - 1 + dx]
-                                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
-    with np.errstate(over="ignore", invalid="ignore"):
-        lv = _lum2(lap) / 20.0
-    mask = (bmin >= BLUR_MIN) & np.isfinite(lv)
-    vb = dh / s
-    tot, sbv = float(vb.sum()), float(vb[mask].sum())
-    if not (sbv > 0 and tot > 0):
-        return f
-    g = (float(lv[mask].sum()) + f * (tot - sbv)) / tot
-    return float(np.clip(g, 0.0, 1.0)) if np.isfinite(g) else f
-
-
-def frame_scale(buf, m=None) -> float:
-    """:func:`variance_scale` of a :class:`~clrecon.core.samples.SampleBuffer` ``buf``
-    against the method's image ``m`` (None: the quarters' factor alone)."""
-    cm = buf.coc_model
-    blur = pixel_blur(buf.depth, buf.motion, (cm.c0, cm.c1)) if m is not None else None
-    return variance_scale(buf.color, m, blur)
+    return float(np.clip(r, 0.0, 1.0)) if np.isfinite(r) else 1.0
 
 
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
-              z7: float = 0.0, test3: bool = True, blur=None):
+              z7: float = 0.0, test3: bool = True):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
-    The halves' variances are scaled by :func:`variance_scale` (with ``blur``, the frame's
-    :func:`pixel_blur`, its blurred pixels' variance measured against the method's image)."""
+    The halves' variances are scaled by :func:`variance_scale`."""
     s = color.shape[2]
     ha, hb = halves(s)
     if m is None and ma is not None:
         m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
     c = color.astype(np.float64)
-    vs = variance_scale(c, None if mode == MODE_BOX else m, blur)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
-                               mode, z7, vs, test3)[:2]
+                               mode, z7, variance_scale(c), test3)[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,

@@ -16,7 +16,7 @@ from clrecon.methods import guided as gd
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard import reference_of_halves
 from clrecon.methods.safeguard_passes import bias_tests
-from clrecon.methods.safeguard_reference import frame_scale
+from clrecon.methods.safeguard_reference import variance_scale
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_samples
@@ -55,10 +55,9 @@ def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend
         assert_close(image, mean, rtol=1e-4, atol=tol, what="image = refined halves' mean")
     else:  # the safeguard's blend toward box, its 7x7 bias mean tested at 2 standard errors
         c = buf.color.astype(np.float64)
-        vs = frame_scale(buf, (ha * ra + (buf.spp - ha) * rb) / buf.spp)
         want, _, _ = reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha,
                                          buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
-                                         sg.GUIDED_Z7, vs,
+                                         sg.GUIDED_Z7, variance_scale(c),
                                          bias_tests(True, buf.spp)[1])
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()

@@ -18,7 +18,7 @@ from clrecon.methods import nlm
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard import reference_of_halves
 from clrecon.methods.safeguard_passes import bias_tests
-from clrecon.methods.safeguard_reference import frame_scale
+from clrecon.methods.safeguard_reference import variance_scale
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_samples
@@ -52,10 +52,9 @@ def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp
     else:
         c = buf.color.astype(np.float64)
         tests = bias_tests(bool(guided), buf.spp)
-        vs = frame_scale(buf, (ha * ra + (buf.spp - ha) * rb) / buf.spp)
         want, _, _ = reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha,
                                          buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
-                                         sg.GUIDED_Z7 if tests[0] else 0.0, vs,
+                                         sg.GUIDED_Z7 if tests[0] else 0.0, variance_scale(c),
                                          tests[1])
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()

@@ -16,7 +16,6 @@ from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import SampleBuffer
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard_passes import bias_tests
-from clrecon.methods.safeguard_reference import pixel_blur
 
 
 def _half(buf: SampleBuffer, sl: slice) -> SampleBuffer:
@@ -41,9 +40,8 @@ def _expected(buf, method, device, mode):
     if mode == sg.MODE_BLEND and METHODS[method].halves_mean:
         m = None
     test7, test3 = bias_tests(False, buf.spp)  # below 8 spp the 7x7 mean is tested
-    blur = pixel_blur(buf.depth, buf.motion, (buf.coc_model.c0, buf.coc_model.c1))
     return sg.reference(buf.color, m, ma, mb, mode=mode, z7=sg.GUIDED_Z7 if test7 else 0.0,
-                        test3=test3, blur=blur)
+                        test3=test3)
 
 
 def _shared_halves(buf, halves, method, device):

@@ -11,7 +11,7 @@ from conftest import assert_close
 
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard_passes import SafeguardPasses, measures_convergence
-from clrecon.methods.safeguard_reference import BLUR_MIN, pixel_blur, variance_scale
+from clrecon.methods.safeguard_reference import variance_scale
 
 
 def _run(device, color, m, ma, mb, mode, vw, z7=0.0, test3=True):
@@ -182,67 +182,3 @@ def test_bias_tests_rule():
         low = s < 8
         assert bias_tests(False, s) == (low, True), s
         assert bias_tests(True, s) == (True, not low), s
-
-
-def _blur_and_scale(device, color, m, depth, motion, coc):
-    """The device's pixel blur and spatial factor (safeguard_stats with the quarters, then
-    safeguard_blur and safeguard_ratio with the method's image)."""
-    ctx, q = device.context, device.queue
-    h, w, s, _ = color.shape
-    passes = SafeguardPasses(ctx, 16)
-    mf = cl.mem_flags
-
-    def up(a):
-        return cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
-                         hostbuf=np.ascontiguousarray(a, np.float32))
-
-    c, mm, box = up(color), up(m), cl.Buffer(ctx, mf.READ_WRITE, h * w * 12)
-    stats = up(np.full(passes.stats_bytes(w, h) // 4, np.nan))
-    blur, scale = up(np.full(h * w, np.nan)), up(np.full(1, np.nan))
-    partial = up(np.full(passes.ratio_bytes(h) // 4, np.nan))
-    ev = passes.run_stats(q, c, mm, mm, mm, box, stats, w, h, s, 1, quarters=True)
-    ev = passes.run_blur(q, up(depth), None if motion is None else up(motion), blur, w, h, s,
-                         coc, [ev])
-    passes.run_ratio(q, stats, partial, scale, w, h, s, [ev], box, mm, blur)[-1].wait()
-    got_blur, got = np.empty((h, w), np.float32), np.empty(1, np.float32)
-    cl.enqueue_copy(q, got_blur, blur)
-    cl.enqueue_copy(q, got, scale)
-    return got_blur, float(got[0])
-
-
-@pytest.mark.parametrize("bright", [1.0, 1e-30, 1e15])
-@pytest.mark.parametrize("motion", [True, False])
-def test_blurred_pixels_measure_their_own_variance(device, rng, bright, motion):
-    """Where a pixel and its neighbours are blurred by >= BLUR_MIN px, the factor takes the
-    Laplacian of box - m (the method's image smooth, box noisy) in place of the scaled halves:
-    the kernels' blur and factor against the reference's, on a frame half blurred (left) and
-    half sharp, whose factor differs from the quarters' alone."""
-    h, w, s = 12, 40, 16
-    color = _stratified_colours(rng, h, w, s, iid=False) * bright
-    m = np.full((h, w, 3), float(np.mean(color)))  # the true image: flat
-    depth = np.where(np.arange(w)[None, :, None] < w // 2, 0.5, 10.0) * np.ones((h, w, s))
-    depth[0, 0, 3] = np.inf  # a miss: the CoC at infinity
-    coc = (2.0, -0.1)  # |c0 / z + c1|: 3.9 px at z = 0.5, 0.1 at 10, 0.1 at inf
-    mv = rng.normal(0.0, 0.2, (h, w, s, 2)) if motion else None
-    if motion:
-        mv[3, 30, 5] = (6.0, 0.0)  # one fast sample: its pixel's least blur is still small
-    got_blur, got = _blur_and_scale(device, color.astype(np.float32), m, depth, mv, coc)
-    want_blur = pixel_blur(depth, mv, coc)
-    assert_close(got_blur, want_blur, rtol=1e-6, atol=1e-6, what="pixel blur")
-    assert (want_blur[1:, : w // 2] >= BLUR_MIN).all() and want_blur[0, 0] < 1  # the miss
-    assert (want_blur[:, w // 2:] < 1).all()
-    c32 = color.astype(np.float32)
-    want = variance_scale(c32, m.astype(np.float32), want_blur)
-    quarters = variance_scale(c32)
-    assert abs(want - quarters) > 0.05  # the blurred half changes the factor
-    assert got == pytest.approx(want, rel=1e-4)
-
-
-def test_no_blurred_pixel_keeps_the_quarters_factor(device, rng):
-    h, w, s = 9, 17, 16
-    color = _stratified_colours(rng, h, w, s, iid=False).astype(np.float32)
-    m = color.mean(2) * 0.5
-    depth = np.full((h, w, s), 10.0)
-    _, got = _blur_and_scale(device, color, m, depth, None, (2.0, -0.1))
-    assert got == pytest.approx(variance_scale(color), rel=1e-4)
-    assert variance_scale(color, m, pixel_blur(depth, None, (2.0, -0.1))) == variance_scale(color)
