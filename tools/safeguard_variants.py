@@ -18,6 +18,9 @@ the device's own image to 0.02 dB). A variant changes one thing:
 * ``se7 1`` / ``se7 2``: the 7x7 mean of ``e`` only where it stands 1 / 2 standard errors
   above zero, as the 3x3 one does;
 * ``shrink7``: the 7x7 mean shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)``;
+* ``cov``: the bias estimate with the covariance of ``m`` and box added back,
+  ``e = d2 - vm - vb + 2 k <mA - mB, boxA - boxB>``: ``m`` averages the pixel's own samples
+  too, so ``E d2 = bias^2 + vm + vb - 2 cov(m, box)`` and the shipped ``e`` is biased low;
 * ``no 3x3``: the bias term without its 3x3 test (the 7x7 mean alone); ``se7 2 no 3x3``:
   the 7x7 mean tested at 2 standard errors alone, as the guided chain's blend runs below
   8 spp (``safeguard_passes.bias_tests``); ``untested 7x7``: the 7x7 mean as it comes (the
@@ -56,7 +59,7 @@ from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_reference, render_samples
 
 VARIANTS = ("shipped", "pixel 3sd", "strat", "strat frame", "se7 1", "se7 2", "shrink7",
-            "no 3x3", "se7 2 no 3x3", "untested 7x7")
+            "no 3x3", "se7 2 no 3x3", "untested 7x7", "cov")
 METHODS = ("sweep", "layered", "splat")
 
 
@@ -90,11 +93,13 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np
         r = np.clip(v_half.mean() / max(v_quarter.mean(), tiny) if variant == "strat frame"
                     else _window_mean(v_half, 3) / np.maximum(_window_mean(v_quarter, 3), tiny),
                     0.0, 0.5)
-        vb, vm = vb * 2 * r, vm * 2 * r
+        fac = 2 * r
     else:  # the shipped factor (1 below 16 spp; from 16, ``strat frame``'s own)
-        vs = variance_scale(color)
-        vb, vm = vb * vs, vm * vs
+        fac = variance_scale(color)
+    vb, vm = vb * fac, vm * fac
     e = _lum2(m - box) - vm - vb
+    if variant == "cov":  # + 2 cov(m, box) from the halves, scaled as vb and vm are
+        e = e + 2.0 * fac * k * np.mean((ma - mb) * (sa / ha - sb / hb), axis=-1)
     mu3, se3 = _se(e, 1)
     mu7, se7 = _se(e, 3)
     rel = np.divide(se7, mu7, out=np.full_like(mu7, np.inf), where=mu7 > 0)  # se7 / mu7

@@ -90,3 +90,26 @@ def test_strat_trusts_box_more_where_halves_agree_better_than_quarters(rng, vari
     d_strat = np.abs(sv.blend(color, ma, mb, variant) - box)
     d_ship = np.abs(sv.blend(color, ma, mb, "shipped") - box)
     assert np.all(d_strat <= d_ship + 1e-12) and np.any(d_strat < 0.5 * d_ship)
+
+
+def test_cov_adds_back_the_covariance_of_the_halves(rng):
+    """``cov``: with the method's halves equal (no covariance with box's) it is the shipped
+    estimator; for a method whose halves differ exactly as box's (box plus a bias) its
+    e = d2 - vm - vb + 2 cov is the squared bias itself, where the shipped e is 2 vb lower:
+    the blend keeps the biased method less."""
+    color, ma, mb = _halves(rng, s=8)
+    same = (ma + mb) / 2
+    np.testing.assert_array_equal(sv.blend(color, same, same, "cov"),
+                                  sv.blend(color, same, same, "shipped"))
+    ha = 4
+    a, b = color[:, :, :ha].mean(2), color[:, :, ha:].mean(2)
+    box = (a + b) / 2
+    bias = np.zeros_like(box)
+    bias[:5, :5] = 0.3  # a coherent bias in one corner
+    got = sv.blend(color, a + bias, b + bias, "cov")
+    ship = sv.blend(color, a + bias, b + bias, "shipped")
+    # the halves differ exactly as box's: vm = vb, cov = vb, so e = |bias|^2 exactly under
+    # cov and |bias|^2 - 2 vb shipped: cov's weight of the biased method is never larger
+    w_cov = (got - box)[:5, :5, 0] / bias[:5, :5, 0]
+    w_ship = (ship - box)[:5, :5, 0] / bias[:5, :5, 0]
+    assert np.all(w_cov <= w_ship + 1e-12) and np.any(w_cov < w_ship - 1e-3)
