@@ -20,13 +20,7 @@
  * E_l = ceil(RL + ML / 2) + 2 the level's reach: a centre lies within RL + ML / 2 level
  * pixels of its frame pixel and a PSF within E_l of its bin.
  *   mip_index(lv, l, layer, qx, qy)  pixel index of unpadded level pixel (qx, qy)
- * Both halves at once (JOINT_HA > 0, the safeguard's halves of an SPP-sample frame: samples
- * 0 .. JOINT_HA - 1 of each pixel are half A, the rest half B): a bin is four float4, half
- * A's (rgb, 1) / JOINT_HA summed, the frame's geometry (r, mx, my) / s and total weight, the
- * frame's (fx, fy, 0, 0), half B's (rgb, 1) / (SPP - JOINT_HA) summed, all geometry weighted
- * 1 / SPP: one PSF per bin, its shape from the frame's samples, drawn with each half's colour
- * into that half's image (MIP_BIN_FLOATS floats a bin).
- * Compile-time: SPP, HAS_MOTION, NLAYERS (defaults in splat.h), NLEV (levels), JOINT_HA.
+ * Compile-time: SPP, HAS_MOTION, NLAYERS (defaults in splat.h), NLEV (levels).
  */
 #ifndef CLRECON_SPLAT_MIP_H
 #define CLRECON_SPLAT_MIP_H
@@ -36,13 +30,6 @@
 #ifndef NLEV
 #define NLEV 1
 #endif
-#ifndef JOINT_HA
-#define JOINT_HA 0
-#endif
-#if JOINT_HA && (JOINT_HA >= SPP)
-#error "JOINT_HA: half A holds 1 .. SPP - 1 samples of each pixel"
-#endif
-#define MIP_BIN_FLOATS (JOINT_HA ? 16 : 12)
 
 /* Every helper is always_inline: at their sizes PoCL's inliner keeps some as calls, and a
  * call stops the vectorisation of the work-item loop (the bin pass ran ~20x slower). */

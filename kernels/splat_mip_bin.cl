@@ -19,10 +19,7 @@
  * (k = pixel SPP + i) is element pixel stride + offset + i.
  * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, and the per-level lists TR, TM, RL, ML
  * (floats, NLEV each; TR[NLEV - 1], TM[NLEV - 1] unused); BIN_VW (1 or 8: the owner tiles'
- * records 8 samples a step as float8 lanes, on CPUs); JOINT_HA (> 0: the bins of both of the
- * safeguard's halves of a whole SPP-sample frame, sample i of a pixel in half A below
- * JOINT_HA: four float4 a bin, splat_mip.h; the records are the same, weighted 1 / SPP, and
- * each half's colour sums are rescaled to its own count as they are added).
+ * records 8 samples a step as float8 lanes, on CPUs).
  */
 #include "splat_mip.h"
 
@@ -245,40 +242,18 @@ __attribute__((always_inline)) inline void mip_add1(__global float *dst, const f
         atomic_add_f32(dst, v);
 }
 
-/* v0..v3: half A's (rgb w, w) (the frame's own without JOINT_HA); with JOINT_HA u0..u3 half
- * B's, both summed at weight 1 / SPP (rescaled here to 1 / JOINT_HA and 1 / (SPP -
- * JOINT_HA)), and vw the frame's weight (the geometry's) */
 __attribute__((always_inline)) inline void mip_bin_add(__global float *bins, const int idx,
                                                        const float v0, const float v1,
                                                        const float v2, const float v3,
                                                        const float v4, const float v5,
                                                        const float v6, const float v7,
-                                                       const float v8,
-#if JOINT_HA
-                                                       const float u0, const float u1,
-                                                       const float u2, const float u3,
-                                                       const float vw,
-#endif
-                                                       const int atomic)
+                                                       const float v8, const int atomic)
 {
-    __global float *b = bins + (size_t)idx * MIP_BIN_FLOATS;
-#if JOINT_HA
-    const float sa = (float)SPP / (float)JOINT_HA, sb = (float)SPP / (float)(SPP - JOINT_HA);
-    mip_add1(b + 0, v0 * sa, atomic);
-    mip_add1(b + 1, v1 * sa, atomic);
-    mip_add1(b + 2, v2 * sa, atomic);
-    mip_add1(b + 3, v3 * sa, atomic);
-    mip_add1(b + 7, vw, atomic);
-    mip_add1(b + 12, u0 * sb, atomic);
-    mip_add1(b + 13, u1 * sb, atomic);
-    mip_add1(b + 14, u2 * sb, atomic);
-    mip_add1(b + 15, u3 * sb, atomic);
-#else
+    __global float *b = bins + (size_t)idx * 12;
     mip_add1(b + 0, v0, atomic);
     mip_add1(b + 1, v1, atomic);
     mip_add1(b + 2, v2, atomic);
     mip_add1(b + 3, v3, atomic);
-#endif
     mip_add1(b + 4, v4, atomic);
     mip_add1(b + 5, v5, atomic);
     mip_add1(b + 6, v6, atomic);
@@ -302,18 +277,8 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
         return;
     MIP_REC_VARS;
     const int idx = mip_record(mip_element(ks, stride, offset), MIP_BIN_PASS, MIP_REC_PASS);
-    if (idx < 0)
-        return;
-#if JOINT_HA
-    if (ks % SPP < JOINT_HA)
-        mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 0.0f, 0.0f, 0.0f, 0.0f,
-                    v3, 1);
-    else
-        mip_bin_add(bins, idx, 0.0f, 0.0f, 0.0f, 0.0f, v4, v5, v6, v7, v8, v0, v1, v2, v3,
-                    v3, 1);
-#else
-    mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
-#endif
+    if (idx >= 0)
+        mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
 }
 
 #define ROW_MAX 512
@@ -394,52 +359,28 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
                     MIP_RECORD_INTO(j, mip_element(first + j, stride, offset));
             }
             /* consecutive samples that share a bin (a pixel's samples, a coarse level's
-             * neighbours) are summed in registers first: one add into the bin per run
-             * (JOINT_HA: the colours of half A in a0..a3, of half B in b0..b3, the frame's
-             * weight in aw; the fields are the whole frame's, so sample first + j is sample
-             * (first + j) % SPP of its pixel) */
+             * neighbours) are summed in registers first: one add into the bin per run */
             int cur = -1;
             float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f, a4 = 0.0f, a5 = 0.0f,
                   a6 = 0.0f, a7 = 0.0f, a8 = 0.0f;
-#if JOINT_HA
-            float b0 = 0.0f, b1 = 0.0f, b2 = 0.0f, b3 = 0.0f, aw = 0.0f;
-#define MIP_ADD_RUN(idx) mip_bin_add(bins, (idx), a0, a1, a2, a3, a4, a5, a6, a7, a8, b0, \
-                                     b1, b2, b3, aw, 0)
-#else
-#define MIP_ADD_RUN(idx) mip_bin_add(bins, (idx), a0, a1, a2, a3, a4, a5, a6, a7, a8, 0)
-#endif
             for (int j = 0; j < n; ++j) {
                 const int idx = ridx[j];
-#if JOINT_HA
-                const float ka = (first + j) % SPP < JOINT_HA ? 1.0f : 0.0f, kb = 1.0f - ka;
-#else
-                const float ka = 1.0f;
-#endif
                 if (idx != cur) {
                     if (cur >= 0) {
-                        MIP_ADD_RUN(cur);
+                        mip_bin_add(bins, cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, 0);
                         flags[cur] = 1;
                     }
                     cur = idx;
-                    a0 = ka * r0[j]; a1 = ka * r1[j]; a2 = ka * r2[j]; a3 = ka * r3[j];
-                    a4 = r4[j]; a5 = r5[j]; a6 = r6[j]; a7 = r7[j]; a8 = r8[j];
-#if JOINT_HA
-                    b0 = kb * r0[j]; b1 = kb * r1[j]; b2 = kb * r2[j]; b3 = kb * r3[j];
-                    aw = r3[j];
-#endif
+                    a0 = r0[j]; a1 = r1[j]; a2 = r2[j]; a3 = r3[j]; a4 = r4[j];
+                    a5 = r5[j]; a6 = r6[j]; a7 = r7[j]; a8 = r8[j];
                 } else {
-                    a0 += ka * r0[j]; a1 += ka * r1[j]; a2 += ka * r2[j]; a3 += ka * r3[j];
-                    a4 += r4[j]; a5 += r5[j]; a6 += r6[j]; a7 += r7[j]; a8 += r8[j];
-#if JOINT_HA
-                    b0 += kb * r0[j]; b1 += kb * r1[j]; b2 += kb * r2[j]; b3 += kb * r3[j];
-                    aw += r3[j];
-#endif
+                    a0 += r0[j]; a1 += r1[j]; a2 += r2[j]; a3 += r3[j]; a4 += r4[j];
+                    a5 += r5[j]; a6 += r6[j]; a7 += r7[j]; a8 += r8[j];
                 }
             }
             if (cur >= 0) {
-                MIP_ADD_RUN(cur);
+                mip_bin_add(bins, cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, 0);
                 flags[cur] = 1;
             }
-#undef MIP_ADD_RUN
         }
 }

@@ -19,20 +19,9 @@
  * lv (int4 per level); the tiles' flags uchar (pixels), 1 where the bin pass filled a bin
  * (zeroed as the bin is drawn); the upsample's l (the level read, >= 1) and margin.
  * Compile-time: NLAYERS (default in splat.h; the host builds both files of the plan with the
- * bin pass's defines), JOINT_HA (> 0: bins of both of the safeguard's halves, splat_mip.h;
- * each PSF, evaluated once, adds half A's colour into img and half B's into img_b, the
- * draw kernels' last argument).
+ * bin pass's defines).
  */
 #include "splat_mip_psf.h"  /* the PSFs, their parameters and rows (and splat_mip.h) */
-
-/* JOINT_HA: half B's weight, row and image follow half A's through the draw */
-#if JOINT_HA
-#define MIP_B_PARAM(decl) , decl
-#define MIP_B_ARG(x) , x
-#else
-#define MIP_B_PARAM(decl)
-#define MIP_B_ARG(x)
-#endif
 
 __attribute__((always_inline)) inline void mip_add4(__global float *dst, const float4 v,
                                                     const int atomic)
@@ -93,9 +82,7 @@ __attribute__((always_inline)) inline float4 mip_psf4(const mip_psf_t *p, const 
 __attribute__((always_inline)) inline float mip_box_row(const mip_psf_t *p, const int y,
                                                        const float4 wv,
                                                        __global float4 *row, const int add,
-                                                       const int shape
-                                                       MIP_B_PARAM(const float4 wvb)
-                                                       MIP_B_PARAM(__global float4 *rowb))
+                                                       const int shape)
 {
     const float dy = (float)y + 0.5f - p->c.y;
     if (shape == MIP_DISC && dy * dy > (p->rho + 0.5f) * (p->rho + 0.5f))
@@ -111,12 +98,6 @@ __attribute__((always_inline)) inline float mip_box_row(const mip_psf_t *p, cons
             row[x + 1] += v.y * wv;
             row[x + 2] += v.z * wv;
             row[x + 3] += v.w * wv;
-#if JOINT_HA
-            rowb[x] += v.x * wvb;
-            rowb[x + 1] += v.y * wvb;
-            rowb[x + 2] += v.z * wvb;
-            rowb[x + 3] += v.w * wvb;
-#endif
         } else {
             acc += v;
         }
@@ -124,12 +105,9 @@ __attribute__((always_inline)) inline float mip_box_row(const mip_psf_t *p, cons
     float sum = (acc.x + acc.y) + (acc.z + acc.w);
     for (; x <= p->x1; ++x) {
         const float v = mip_psf4(p, (float4)((float)x + 0.5f - p->c.x), dy, shape).x;
-        if (add) {
+        if (add)
             row[x] += v * wv;
-#if JOINT_HA
-            rowb[x] += v * wvb;
-#endif
-        } else
+        else
             sum += v;
     }
     return sum;
@@ -141,31 +119,20 @@ __attribute__((always_inline)) inline float mip_box_row(const mip_psf_t *p, cons
  * bin at its own pixel. */
 __attribute__((always_inline)) inline void mip_draw_box(const mip_psf_t *p, __global float *img,
                                                        __global float *base, const int4 g,
-                                                       const int shape
-                                                       MIP_B_PARAM(__global float *img_b)
-                                                       MIP_B_PARAM(__global float *base_b))
+                                                       const int shape)
 {
     float sum = p->sum;
     if (!(sum > 0.0f))
         for (int y = p->y0; y <= p->y1; ++y)
-            sum += mip_box_row(p, y, (float4)(0.0f), 0, 0, shape
-                               MIP_B_ARG((float4)(0.0f)) MIP_B_ARG(0));
+            sum += mip_box_row(p, y, (float4)(0.0f), 0, 0, shape);
     if (!(sum > 0.0f)) {
         mip_add4(img + p->bi * 4, p->b0, 0);
-#if JOINT_HA
-        mip_add4(img_b + p->bi * 4, p->bb, 0);
-#endif
         return;
     }
     const float4 wv = p->b0 * (1.0f / sum);
-#if JOINT_HA
-    const float4 wvb = p->bb * (1.0f / sum);
-#endif
-    for (int y = p->y0; y <= p->y1; ++y) {
-        const size_t at = (size_t)(y + g.w) * g.y * 4;
-        (void)mip_box_row(p, y, wv, (__global float4 *)(base + at) + g.w, 1, shape
-                          MIP_B_ARG(wvb) MIP_B_ARG((__global float4 *)(base_b + at) + g.w));
-    }
+    for (int y = p->y0; y <= p->y1; ++y)
+        (void)mip_box_row(p, y, wv, (__global float4 *)(base + (size_t)(y + g.w) * g.y * 4)
+                          + g.w, 1, shape);
 }
 
 /* Draw bin (qx, qy) of `layer` at level l into img, one work-item alone. */
@@ -174,33 +141,25 @@ __attribute__((always_inline)) inline void mip_draw_one(const int l, const int l
                                                        const int atomic,
                                                        __global float *bins,
                                                        __global float *img,
-                                                       __global const int4 *lv
-                                                       MIP_B_PARAM(__global float *img_b))
+                                                       __global const int4 *lv)
 {
     mip_psf_t p;
     if (!mip_params(l, layer, qx, qy, bins, lv, &p))
         return;
     const int4 g = lv[l];
-    const size_t first = ((size_t)g.x + (size_t)layer * g.z * g.y) * 4;
-    __global float *base = img + first;
-#if JOINT_HA
-    __global float *base_b = img_b + first;
-#endif
+    __global float *base = img + ((size_t)g.x + (size_t)layer * g.z * g.y) * 4;
     float sum = p.sum;
     if (!atomic) {  /* plain adds: the PSF's box, row by row (mip_box_row) */
         if (p.point) {
             mip_add4(img + p.bi * 4, p.b0, 0);
-#if JOINT_HA
-            mip_add4(img_b + p.bi * 4, p.bb, 0);
-#endif
             return;
         }
         if (p.len >= 0.5f)
-            mip_draw_box(&p, img, base, g, MIP_SWEPT MIP_B_ARG(img_b) MIP_B_ARG(base_b));
+            mip_draw_box(&p, img, base, g, MIP_SWEPT);
         else if (p.rho >= 1.5f)
-            mip_draw_box(&p, img, base, g, MIP_DISC MIP_B_ARG(img_b) MIP_B_ARG(base_b));
+            mip_draw_box(&p, img, base, g, MIP_DISC);
         else
-            mip_draw_box(&p, img, base, g, MIP_SMALL MIP_B_ARG(img_b) MIP_B_ARG(base_b));
+            mip_draw_box(&p, img, base, g, MIP_SMALL);
         return;
     }
     /* atomic adds: each row's pixels that the PSF may cover, its constant inside as a run */
@@ -218,58 +177,38 @@ __attribute__((always_inline)) inline void mip_draw_one(const int l, const int l
     }
     if (p.point || !(sum > 0.0f)) {
         mip_add4(img + p.bi * 4, p.b0, 1);
-#if JOINT_HA
-        mip_add4(img_b + p.bi * 4, p.bb, 1);
-#endif
         return;
     }
     const float4 wv = p.b0 * (1.0f / sum);
-#if JOINT_HA
-    const float4 wvb = p.bb * (1.0f / sum);
-#endif
     for (int y = p.y0; y <= p.y1; ++y) {
-        const size_t at = (size_t)(y + g.w) * g.y * 4;
-        __global float *row = base + at;
-#if JOINT_HA
-        __global float *rowb = base_b + at;
-#define MIP_ADD_B(x, v) mip_add4(rowb + (size_t)((x) + g.w) * 4, (v) * wvb, 1)
-#else
-#define MIP_ADD_B(x, v)
-#endif
+        __global float *row = base + (size_t)(y + g.w) * g.y * 4;
         mip_row(&p, y, &xa, &xb, &ia, &ib, &vin);
         for (int x = xa; x < ia; ++x) {
             const float v = mip_psf_at(&p, x, y);
-            if (v > 0.0f) {
+            if (v > 0.0f)
                 mip_add4(row + (size_t)(x + g.w) * 4, v * wv, 1);
-                MIP_ADD_B(x, v);
-            }
         }
         const float4 wi = vin * wv;
-        for (int x = ia; x <= ib; ++x) {
+        for (int x = ia; x <= ib; ++x)
             mip_add4(row + (size_t)(x + g.w) * 4, wi, 1);
-            MIP_ADD_B(x, vin);
-        }
         for (int x = max(ib + 1, ia); x <= xb; ++x) {
             const float v = mip_psf_at(&p, x, y);
-            if (v > 0.0f) {
+            if (v > 0.0f)
                 mip_add4(row + (size_t)(x + g.w) * 4, v * wv, 1);
-                MIP_ADD_B(x, v);
-            }
         }
-#undef MIP_ADD_B
     }
 }
 
 /* One work-item per bin (x, y of the widest level, z = level * NLAYERS + layer), atomic. */
 __kernel void splat_mip_draw_bins(__global float *bins, __global float *img,
-                                  __global const int4 *lv MIP_B_PARAM(__global float *img_b))
+                                  __global const int4 *lv)
 {
     const int l = get_global_id(2) / NLAYERS, layer = get_global_id(2) % NLAYERS;
     const int4 g = lv[l];
     const int qx = get_global_id(0) - g.w, qy = get_global_id(1) - g.w;
     if (qx >= g.y - g.w || qy >= g.z - g.w)
         return;
-    mip_draw_one(l, layer, qx, qy, 1, bins, img, lv MIP_B_ARG(img_b));
+    mip_draw_one(l, layer, qx, qy, 1, bins, img, lv);
 }
 
 /* One work-item per tile of tile x tile level pixels at every level (z = level * NLAYERS +
@@ -279,7 +218,7 @@ __kernel void splat_mip_draw_bins(__global float *bins, __global float *img,
 __kernel void splat_mip_draw_tiles(__global float *bins, __global float *img,
                                    __global const int4 *lv, const int tile, const int k,
                                    const int phase_x, const int phase_y,
-                                   __global uchar *flags MIP_B_PARAM(__global float *img_b))
+                                   __global uchar *flags)
 {
     const int l = get_global_id(2) / NLAYERS, layer = get_global_id(2) % NLAYERS;
     const int4 g = lv[l];
@@ -299,7 +238,7 @@ __kernel void splat_mip_draw_tiles(__global float *bins, __global float *img,
         for (int x = xs; x < x1; ++x)
             if (fl[x - xs]) {
                 fl[x - xs] = 0;  /* consumed, as the bin is: clean for the next frame */
-                mip_draw_one(l, layer, x - g.w, y - g.w, 0, bins, img, lv MIP_B_ARG(img_b));
+                mip_draw_one(l, layer, x - g.w, y - g.w, 0, bins, img, lv);
             }
     }
 }

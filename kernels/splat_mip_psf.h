@@ -42,9 +42,6 @@ __attribute__((always_inline)) inline float mip_psf(const float2 d, const float 
  * pixels it covers [x0, x1] x [y0, y1] (within the level's reach of the bin), and where it is. */
 typedef struct {
     float4 b0;
-#if JOINT_HA
-    float4 bb;  /* half B's (rgb w, w); b0 is half A's */
-#endif
     float2 c, u;
     float rho, len, sum;
     int x0, x1, y0, y1, point;
@@ -53,29 +50,22 @@ typedef struct {
 
 /* The PSF of bin (qx, qy) of `layer` at level l; 0 for an empty bin. A point (r, |m| < 1/2)
  * is the bin's pixel itself; sum is the PSF's analytic sum, or 0 where the pixels must be
- * summed (small radii). With JOINT_HA the geometry is the frame's (weight q[7]), b0 and bb
- * the halves' colours (splat_mip.h). */
+ * summed (small radii). */
 __attribute__((always_inline)) inline int mip_params(const int l, const int layer, const int qx,
                                                      const int qy, __global float *bins,
                                                      __global const int4 *lv, mip_psf_t *p)
 {
     p->bi = mip_index(lv, l, layer, qx, qy);
-    __global float *q = bins + p->bi * MIP_BIN_FLOATS;
-    p->b0 = vload4(0, q);
-#if JOINT_HA
-    const float wt = q[7];
-    p->bb = vload4(3, q);
-#else
-    const float wt = p->b0.w;
-#endif
-    if (!(wt > 0.0f))
+    p->b0 = vload4(0, bins + p->bi * 12);
+    if (!(p->b0.w > 0.0f))
         return 0;
-    const float iw = 1.0f / wt;
-    const float4 b1 = vload4(1, q) * iw;
-    const float4 b2 = vload4(2, q) * iw;
+    const float iw = 1.0f / p->b0.w;
+    const float4 b1 = vload4(0, bins + p->bi * 12 + 4) * iw;
+    const float4 b2 = vload4(0, bins + p->bi * 12 + 8) * iw;
     /* the bin is consumed: zeroed for the next frame (the host then skips its clear) */
-    for (int j = 0; j < MIP_BIN_FLOATS / 4; ++j)
-        vstore4((float4)(0.0f), j, q);
+    vstore4((float4)(0.0f), 0, bins + p->bi * 12);
+    vstore4((float4)(0.0f), 0, bins + p->bi * 12 + 4);
+    vstore4((float4)(0.0f), 0, bins + p->bi * 12 + 8);
     const float2 m = (float2)(b1.y, b1.z);
     p->len = length(m);
     p->point = b1.x < 0.5f && p->len < 0.5f;

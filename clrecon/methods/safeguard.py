@@ -179,15 +179,11 @@ class Safeguarded(Pipeline):
             f"{h}.{f}" for h in "ab" for f in inner_fields)
         # steps the frame runs once for both halves, and their outputs the halves' rest reads
         js = tuple(getattr(self.full, "joint_steps", ())) if joint and self.views else ()
-        self.joint = js if self.halves_mean and js and all(n in have for n in js) else ()
+        self.joint = js if self.shared and all(n in have for n in js) else ()
         rest_in = {i for st in self.half_a.plan.steps if st.name not in self.shared + self.joint
                    for i in st.inputs} if self.joint else set()
-        self.joint_out = tuple(dict.fromkeys(
-            o for n in self.joint for o in have[n].outputs
-            if o in self.full.plan.temporaries and o in rest_in))
-        # what else the joint steps write (splat's bins of both halves): the safeguard's own
-        self.joint_temps = dict(getattr(self.full, "joint_temporaries", {})) \
-            if self.joint else {}
+        self.joint_out = tuple(o for n in self.joint for o in have[n].outputs
+                               if o in self.full.plan.temporaries and o in rest_in)
         steps = []
         if not is_box:
             temps |= {"ma": npx * 12, "mb": npx * 12}
@@ -204,11 +200,9 @@ class Safeguarded(Pipeline):
                                   self._inner_step(self.shared)))
             for o in self.joint_out:  # half B's copy of each (half A's: the frame's own)
                 temps[f"{o}_b"] = self.full.plan.temporaries[o]
-            temps |= {f"joint.{k}": n for k, n in self.joint_temps.items()}
             if self.joint:
                 steps.append(Step(f"{method} ({', '.join(self.joint)}, both halves)",
-                                  inner_fields, tuple(f"{o}_b" for o in self.joint_out)
-                                  + tuple(f"joint.{k}" for k in self.joint_temps),
+                                  inner_fields, tuple(f"{o}_b" for o in self.joint_out),
                                   self._joint_step()))
             steps.append(Step(f"{method} (halves)", half_fields, ("ma", "mb"),
                               self._halves_step(inner_fields)))
@@ -282,11 +276,9 @@ class Safeguarded(Pipeline):
     def _joint_step(self):
         def run(queue, f, wait_for):
             ha, _ = halves(f.spp)
-            extra = {k: f.buffers[f"joint.{k}"] for k in self.joint_temps}
-            own = all(self._own.get(f"joint.{k}") is b for k, b in extra.items())
             evs = self.full.joint_halves(queue, f.samples, ha,
                                          *(f.buffers[f"{o}_b"] for o in self.joint_out),
-                                         wait_for=wait_for, info=f.info, own=own, **extra)
+                                         wait_for=wait_for)
             if evs is None:
                 raise RuntimeError(f"safeguard: {self.name}'s plan cannot run "
                                    f"{', '.join(self.joint)} for both halves")
@@ -305,7 +297,7 @@ class Safeguarded(Pipeline):
                     ds = DeviceSamples(f.height, f.width, n,
                                        {k: f.buffers[f"{half}.{k}"] for k in fields},
                                        f.samples.coc, info)
-                if self.shared or self.joint:  # the frame's outputs of those steps, the rest
+                if self.shared:  # the frame's outputs of the shared steps, the rest here
                     done = self.shared + self.joint
                     rest = tuple(st.name for st in pipe.plan.steps if st.name not in done)
                     given = {k: self.full.buffer(k) for k in self.shared_out

@@ -356,16 +356,14 @@ class LayeredPipeline(Pipeline):
         return () if self.box is not None or self.fixed else ("reproject",)
 
     def joint_halves(self, queue, samples: DeviceSamples, ha: int, grids_b: cl.Buffer,
-                     wait_for=None, info=None, own: bool = False) -> list | None:
+                     wait_for=None) -> list | None:
         """The safeguard's hook: after the shared steps ran on the frame ``samples``, reproject
         both halves at once (:meth:`Reproject.joint_halves`), half A into this pipeline's
         ``grids`` and B into ``grids_b``; the events, or None where the plan cannot (box,
-        fixed point: :attr:`joint_steps` is empty there). ``info``: the frame's (its depth
-        range places the buckets); ``own`` is the hook's common signature (layered keeps no
-        state between frames in the buffers it is given)."""
+        fixed point: :attr:`joint_steps` is empty there)."""
         if not self.joint_steps:
             return None
-        self.reproject.joint_halves(queue, samples, ha, self.bucket_params(samples, info),
+        self.reproject.joint_halves(queue, samples, ha, self.bucket_params(samples),
                                     self.buffer("params"), self.buffer("grids"), grids_b,
                                     self.buffer("buckets"), wait_for)
         return list(self.reproject.events)

@@ -112,12 +112,6 @@ class MipGeometry:
     def bin_bytes(self) -> int:
         return self.pixels * 48
 
-    @property
-    def joint_bin_bytes(self) -> int:
-        """The bins of both of the safeguard's halves (:class:`MipSplat` ``joint_ha``): half
-        B's colour sums beside half A's and the frame's geometry, 64 bytes a bin."""
-        return self.pixels * 64
-
 
 def bin_lanes(context: cl.Context) -> int:
     """Samples a step of the owner tiles' record loop (``BIN_VW``): 8 on a CPU, 1 elsewhere.
@@ -131,28 +125,16 @@ def bin_lanes(context: cl.Context) -> int:
 
 class MipSplat:
     """The bin, draw and upsample passes of the mip plan (``scatter``: ``"tiles"``, owner
-    tiles with plain adds, bit-reproducible; or ``"atomic"``, float atomics).
-
-    ``joint_ha`` (1 .. spp - 1; 0: off): the passes of both of the safeguard's halves of a
-    whole ``spp``-sample frame at once, half A its samples below ``joint_ha`` in each pixel,
-    B the rest. One bin per level pixel holds both halves' colour sums and the frame's
-    geometry (:attr:`MipGeometry.joint_bin_bytes`); each bin's PSF is computed once, from
-    all its samples, and drawn with half A's colour into one image and half B's into
-    another. The halves' images then differ only by their colours' noise: their PSFs are the
-    frame's (as layered's halves filter the frame's partitions)."""
+    tiles with plain adds, bit-reproducible; or ``"atomic"``, float atomics)."""
 
     def __init__(self, context: cl.Context, spp: int, has_motion: bool, geometry: MipGeometry,
-                 scatter: str, joint_ha: int = 0):
+                 scatter: str):
         self.geo, self.scatter, self.spp = geometry, scatter, int(spp)
-        self.joint_ha = int(joint_ha)
-        if self.joint_ha and not 0 < self.joint_ha < self.spp:
-            raise ValueError(f"joint_ha: half A holds 1 .. {self.spp - 1} samples of a pixel "
-                             f"of this {self.spp}-sample frame, got {joint_ha}")
         # the bin pass's owner tile (a kernel argument: one program serves every frame size)
         self.bin_tile = min(Splat.tile_size(0, geometry.shift, PHASES),
                             max(geometry.width, geometry.height))
         defines = {"SPP": spp, "HAS_MOTION": int(has_motion), "NLAYERS": geometry.layers,
-                   **geometry.defines(), **({"JOINT_HA": self.joint_ha} if self.joint_ha else {})}
+                   **geometry.defines()}
         names = ("splat_mip_bin_tiles", "splat_mip_draw_tiles") if scatter == "tiles" else \
             ("splat_mip_bin_samples", "splat_mip_draw_bins")
         # the owner tiles' records, 8 samples a step as float8 lanes on a CPU
@@ -171,10 +153,6 @@ class MipSplat:
         (``geo.pixels`` bytes, zero before) where a bin was added to."""
         if self.scatter == "tiles" and flags is None:
             raise ValueError("bin: the owner tiles need the bins' flags")
-        if self.joint_ha and (samples.is_view or samples.spp != self.spp):
-            raise ValueError(f"bin: the joint passes read a whole frame of {self.spp} samples "
-                             f"per pixel, got {samples.spp}"
-                             + (" (a view)" if samples.is_view else ""))
         w, h, spp = samples.width, samples.height, samples.spp
         c0, c1 = samples.coc
         # a view of a frame (the safeguard's halves) is read in place: samples.strided()
@@ -205,21 +183,18 @@ class MipSplat:
         return self.events[-1][1]
 
     def draw(self, queue, bins: cl.Buffer, img: cl.Buffer, wait_for=None,
-             flags: cl.Buffer | None = None, img_b: cl.Buffer | None = None) -> cl.Event:
-        """One PSF per non-empty bin into ``img`` (``joint_ha``: half A's colour, and half
-        B's into ``img_b``); each drawn bin (and with the owner tiles its flag) is zeroed."""
+             flags: cl.Buffer | None = None) -> cl.Event:
+        """One PSF per non-empty bin into ``img``; each drawn bin (and with the owner tiles
+        its flag) is zeroed."""
         if self.scatter == "tiles" and flags is None:
             raise ValueError("draw: the owner tiles need the bins' flags")
-        if bool(self.joint_ha) != (img_b is not None):
-            raise ValueError("draw: img_b is half B's image, for the joint passes alone")
-        tail = [img_b] if self.joint_ha else []
         g = self.geo
         # the widest level (a coarse level's larger pad can outgrow level 0 on tiny frames)
         nw, nh = int(g.levels[:, 1].max()), int(g.levels[:, 2].max())
         z = g.nlev * g.layers
         self.events = []
         if self.scatter == "atomic":
-            self.draw_kernel.set_args(bins, img, self.levels, *tail)
+            self.draw_kernel.set_args(bins, img, self.levels)
             ev = cl.enqueue_nd_range_kernel(queue, self.draw_kernel, (nw, nh, z), None,
                                             wait_for=wait_for)
             self.events.append(("splat_mip_draw", ev))
@@ -230,7 +205,7 @@ class MipSplat:
         evs = wait_for
         for px, py, gx, gy in owner_phases(nx, ny, k):
             self.draw_kernel.set_args(bins, img, self.levels, np.int32(tile), np.int32(k),
-                                      np.int32(px), np.int32(py), flags, *tail)
+                                      np.int32(px), np.int32(py), flags)
             ev = cl.enqueue_nd_range_kernel(queue, self.draw_kernel, (gx, gy, z), None,
                                             wait_for=evs)
             self.events.append(("splat_mip_draw", ev))

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import logging
 
-import pyopencl as cl
-
 from clrecon.core.fill import zero_buffer
 from clrecon.core.plan import Plan, Step, shape_bounds
 from clrecon.core.samples import FIELDS
@@ -37,8 +35,8 @@ class MipPlan:
             log.warning("splat: the frame's blur exceeds %d mip levels; the largest PSF "
                         "stands in for larger blur", geo.nlev)
         self.pad = geo.pad
-        self.mip_has_motion = self.has_motion and self.psf == "combined"
-        self.mip = MipSplat(context, info.spp, self.mip_has_motion, geo, scatter)
+        self.mip = MipSplat(context, info.spp, self.has_motion and self.psf == "combined",
+                            geo, scatter)
         self.composite = SplatComposite(context, self.layers, False,
                                         local_size_of(config(SplatComposite.TUNABLE)))
         tiles = self.mip.scatter == "tiles"
@@ -101,80 +99,10 @@ class MipPlan:
                  Step("draw", bin_bufs, ("mip_image",), draw)]
         if geo.nlev > 1:
             steps.append(Step("upsample", ("mip_image",), ("mip_image",), upsample))
-        # (ring: an argument the composite does not read without the Laplacian images)
-        steps.append(Step("splat_composite", ("mip_image", "ring", "color"), ("out",),
-                          composite))
+        steps.append(Step("splat_composite", ("mip_image", "color"), ("out",), composite))
         bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
-        # the safeguard's halves at once (joint_halves): the passes compiled per half A's
-        # count, and the joint bins known to be clean (zeroed by the draw that consumed them)
-        self._joint: dict[int, MipSplat] = {}
-        self._joint_clean: set[tuple[int, ...]] = set()
         # the bin pass and the composite read their samples through strided(): a view of a
         # frame (one half, for the safeguard) is read in place
         self.sample_views = True
         self.set_plan(Plan("splat", "splat", tuple(FIELDS), tuple(steps), temps,
                            tuple(bounds)))
-
-    # -- the safeguard's halves at once ---------------------------------------------------
-    @property
-    def joint_steps(self) -> tuple[str, ...]:
-        """What the safeguard may run once on the frame for both halves (:meth:`joint_halves`):
-        the mip plan's steps up to the composite; none for the paper's plan or box."""
-        if getattr(self, "plan_name", None) != "mip":
-            return ()
-        return tuple(st.name for st in self.plan.steps if st.name != "splat_composite")
-
-    @property
-    def joint_temporaries(self) -> dict[str, int]:
-        """The buffers :meth:`joint_halves` takes besides half B's image (bytes by name):
-        the bins of both halves and, with the owner tiles, their flags."""
-        if not self.joint_steps:
-            return {}
-        geo = self.geometry
-        return {"bins": geo.joint_bin_bytes} | (
-            {"flags": geo.pixels} if self.mip.scatter == "tiles" else {})
-
-    def joint_halves(self, queue, samples, ha: int, mip_image_b: cl.Buffer, wait_for=None,
-                     info=None, own: bool = False, bins: cl.Buffer | None = None,
-                     flags: cl.Buffer | None = None) -> list | None:
-        """The safeguard's hook: the mip plan's passes for both halves of the frame
-        ``samples`` (half A its first ``ha`` samples of each pixel) at once, one PSF per bin
-        from the frame's samples drawn with each half's colour (:class:`MipSplat`
-        ``joint_ha``): half A's level 0 into this pipeline's ``mip_image``, B's into
-        ``mip_image_b``, what each half's ``splat_composite`` then reads. ``bins`` and
-        ``flags``: :attr:`joint_temporaries`, zeroed here unless ``own`` (the caller's own
-        buffers, only ever written by these passes) and a previous call's draw left them
-        clean. ``info``: the frame's (its depth range places the layers). The events, or
-        None where the plan has no joint steps."""
-        if not self.joint_steps:
-            return None
-        if bins is None or (self.mip.scatter == "tiles" and flags is None):
-            raise ValueError("joint_halves: needs the joint bins (and the owner tiles' flags): "
-                             f"{sorted(self.joint_temporaries)}")
-        mip = self._joint.get(ha)
-        if mip is None:
-            mip = self._joint[ha] = MipSplat(self.context, samples.spp, self.mip_has_motion,
-                                             self.geometry, self.mip.scatter, joint_ha=ha)
-        img_a = self.buffer("mip_image")
-        key = (bins.int_ptr,) + ((flags.int_ptr,) if flags is not None else ())
-        clean = key in self._joint_clean
-        evs = [("clear", zero_buffer(queue, img, self.geometry.image_bytes, wait_for))
-               for img in (img_a, mip_image_b)]
-        for buf, size in ((bins, self.geometry.joint_bin_bytes), (flags, self.geometry.pixels)):
-            if buf is not None:  # clean bins: a 16-byte fill (the same events every frame)
-                evs.append(("clear", zero_buffer(queue, buf, 16 if clean else size,
-                                                 wait_for)))
-        inv_far, scale = layer_params(info or samples.info or self.info, self.layers)
-        self._joint_clean.discard(key)
-        mip.bin(queue, samples, inv_far, scale, bins, [ev for _, ev in evs], flags)
-        evs += mip.events
-        mip.draw(queue, bins, img_a, [evs[-1][1]], flags, img_b=mip_image_b)
-        evs += mip.events
-        if own:
-            self._joint_clean.add(key)
-        if self.geometry.nlev > 1:
-            last = [evs[-1][1]]
-            for img in (img_a, mip_image_b):
-                mip.upsample(queue, img, last)
-                evs += mip.events
-        return evs

@@ -15,11 +15,8 @@ F = np.float32
 
 
 def bins(buf, geo: MipGeometry, inv_far: float, layer_scale: float,
-         has_motion: bool, joint_ha: int = 0) -> np.ndarray:
-    """The bin images ``(pixels, 12)`` (every level and layer, the kernels' layout); with
-    ``joint_ha`` (:class:`~clrecon.methods.splat.mip.MipSplat`'s) the joint bins ``(pixels,
-    16)``: half A's (rgb, 1) / ha and half B's / (S - ha) summed, the frame's geometry
-    weighted 1 / S with its total weight in column 7."""
+         has_motion: bool) -> np.ndarray:
+    """The bin images ``(pixels, 12)`` (every level and layer, the kernels' layout)."""
     c0, c1 = F(buf.coc_model.c0), F(buf.coc_model.c1)
     z = buf.depth.reshape(-1).astype(np.float32)
     miss = z >= F(MISS_DEPTH)
@@ -65,19 +62,8 @@ def bins(buf, geo: MipGeometry, inv_far: float, layer_scale: float,
     rec[:, 4] = (r * cs * inv_s).astype(np.float64) * w
     rec[:, 5:7] = mot.astype(np.float64) * (ms * inv_s)[:, None] * w
     rec[:, 8:10] = (c - fq).astype(np.float64) * w
-    if not joint_ha:
-        out = np.zeros((geo.pixels, 12))
-        np.add.at(out, idx[keep], rec[keep])
-        return out
-    spp = buf.spp
-    half_b = (np.arange(len(z)) % spp) >= joint_ha  # sample i of its pixel (frame order)
-    jr = np.zeros((len(z), 16))
-    jr[:, 4:12] = rec[:, 4:12]
-    jr[:, 7] = w
-    jr[:, :4] = np.where(half_b[:, None], 0.0, rec[:, :4] * (spp / joint_ha))
-    jr[:, 12:] = np.where(half_b[:, None], rec[:, :4] * (spp / (spp - joint_ha)), 0.0)
-    out = np.zeros((geo.pixels, 16))
-    np.add.at(out, idx[keep], jr[keep])
+    out = np.zeros((geo.pixels, 12))
+    np.add.at(out, idx[keep], rec[keep])
     return out
 
 
@@ -101,25 +87,21 @@ def psf(dx: np.ndarray, dy: np.ndarray, rho: float, length: float, u) -> np.ndar
 
 
 def draw(b: np.ndarray, geo: MipGeometry) -> np.ndarray:
-    """The level images ``(pixels, 4)`` drawn from the bins ``b``; from joint bins
-    (``(pixels, 16)``, :func:`bins` with ``joint_ha``) half A's and half B's,
-    ``(2, pixels, 4)``: one PSF per bin, its geometry the frame's, each half's colour."""
-    joint = b.shape[1] == 16
-    img = np.zeros((2, geo.pixels, 4) if joint else (1, geo.pixels, 4))
-    wcol = 7 if joint else 3
+    """The level images ``(pixels, 4)`` drawn from the bins ``b``."""
+    img = np.zeros((geo.pixels, 4))
     for first, nw, nh, p in geo.levels.astype(np.int64):
         reach = p // 2
         for layer in range(geo.layers):
             base = first + layer * nh * nw
-            blk = b[base:base + nh * nw].reshape(nh, nw, b.shape[1])
-            for py, px in zip(*np.nonzero(blk[..., wcol] > 0)):
+            blk = b[base:base + nh * nw].reshape(nh, nw, 12)
+            for py, px in zip(*np.nonzero(blk[..., 3] > 0)):
                 rec = blk[py, px]
-                wgt = rec[wcol]
+                wgt = rec[3]
                 rad, mx, my = rec[4] / wgt, rec[5] / wgt, rec[6] / wgt
                 ln = float(np.hypot(mx, my))
-                b0 = np.stack([rec[:4], rec[12:16]]) if joint else rec[None, :4]
+                b0 = rec[:4]
                 if rad < 0.5 and ln < 0.5:
-                    img[:, base + py * nw + px] += b0
+                    img[base + py * nw + px] += b0
                     continue
                 rho = max(rad, 0.5)
                 u = (mx / ln, my / ln) if ln > 0 else (1.0, 0.0)
@@ -138,12 +120,11 @@ def draw(b: np.ndarray, geo: MipGeometry) -> np.ndarray:
                 else:
                     tot = 2 * ln * np.pi * (rho * rho + 0.0625) if rho >= 4 else v.sum()
                 if not tot > 0:
-                    img[:, base + py * nw + px] += b0
+                    img[base + py * nw + px] += b0
                     continue
                 at = base + (gy + p) * nw + gx + p
-                for h in range(len(b0)):
-                    np.add.at(img[h], at.ravel(), (v.ravel() / tot)[:, None] * b0[h][None, :])
-    return img if joint else img[0]
+                np.add.at(img, at.ravel(), (v.ravel() / tot)[:, None] * b0[None, :])
+    return img
 
 
 def upsample(img: np.ndarray, geo: MipGeometry) -> np.ndarray:
@@ -171,11 +152,9 @@ def upsample(img: np.ndarray, geo: MipGeometry) -> np.ndarray:
 
 
 def level0(buf, geo: MipGeometry, inv_far: float, layer_scale: float,
-           has_motion: bool, joint_ha: int = 0):
+           has_motion: bool) -> np.ndarray:
     """What ``splat_composite`` reads: level 0 after the upsampling, ``(layers, H + 2 P,
-    W + 2 P, 4)``; with ``joint_ha`` half A's and half B's (a pair)."""
-    drawn = draw(bins(buf, geo, inv_far, layer_scale, has_motion, joint_ha), geo)
+    W + 2 P, 4)``."""
+    img = upsample(draw(bins(buf, geo, inv_far, layer_scale, has_motion), geo), geo)
     _, nw, nh, _ = geo.levels[0]
-    levels = [upsample(img, geo)[:geo.layers * nh * nw].reshape(geo.layers, nh, nw, 4)
-              for img in (drawn if joint_ha else [drawn])]
-    return tuple(levels) if joint_ha else levels[0]
+    return img[:geo.layers * nh * nw].reshape(geo.layers, nh, nw, 4)
