@@ -199,3 +199,17 @@ def test_bins_are_cleared_unless_known_clean(device, rng):
         cl.enqueue_copy(device.queue, img, out)
         device.queue.finish()
         assert np.array_equal(img, first)
+
+
+def test_composite_runs_as_a_step_of_its_own(device, rng):
+    """A selection of steps binds only the temporaries its steps name: the composite alone,
+    after a whole run, gets the ring it takes as an argument and gives the same image."""
+    buf = frame(rng, h=12, w=15, s=4, motion=True, aperture=10.0)
+    pipe, first, _ = run_mip(device, buf, mip_radius=4.0)
+    s = DeviceSamples.upload(device.queue, buf, pipe.fields)
+    out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, buf.width * buf.height * 12)
+    pipe(device.queue, s, out, steps=("splat_composite",)).wait()
+    img = np.empty_like(first)
+    cl.enqueue_copy(device.queue, img, out)
+    device.queue.finish()
+    assert np.array_equal(img, first)

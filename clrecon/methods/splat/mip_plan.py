@@ -99,7 +99,10 @@ class MipPlan:
                  Step("draw", bin_bufs, ("mip_image",), draw)]
         if geo.nlev > 1:
             steps.append(Step("upsample", ("mip_image",), ("mip_image",), upsample))
-        steps.append(Step("splat_composite", ("mip_image", "color"), ("out",), composite))
+        # (ring: an argument the composite does not read without the Laplacian images, bound
+        # all the same: a selection of steps allocates only what its steps name)
+        steps.append(Step("splat_composite", ("mip_image", "ring", "color"), ("out",),
+                          composite))
         bounds = shape_bounds(info, "kernels compiled for this spp") + tuple(bounds)
         # the bin pass and the composite read their samples through strided(): a view of a
         # frame (one half, for the safeguard) is read in place
