@@ -15,7 +15,9 @@
  *                    halves' overstatement of stratified samples' variances; 1 below
  *                    16 spp, where it is not measured)
  *   safeguard_blend  windowed means (3x3 and 7x7, over the pixels inside the image), the bias
- *                    estimate b2 = max(0, mean7(e), mean3(e) - 2 se3(e)), e = d2 - vm - vb
+ *                    estimate b2 = max(0, mean7(e), mean3(e) - 2 se3(e)), e = d2 - vm - vb,
+ *                    or with the covariance of m and box modelled (vm_sign = +1, from
+ *                    16 spp: clrecon/methods/safeguard.py) e = d2 + vm - vb
  *                    (se3: the standard error of the 3x3 mean), the method's
  *                    error b2 + mean3(vm), vbw = max(mean3(vb), mean7(vb)), the weight
  *                    w = vbw / (vbw + error), the image and its estimated squared error
@@ -27,7 +29,8 @@
  * the guided refinement's blend toward its guide), stats: five planes
  * (d2, vb, vm, e, dq) of (H, sp) floats, pixel x at column x + 3, sp >= rp + 6, the columns
  * outside the image 0 and e = SG_PAD_E (dq written only with quarters = 1); rows: vscale
- * (1 float, kernels/safeguard_ratio.cl's scale or 1) and nine
+ * (1 float, kernels/safeguard_ratio.cl's scale or 1), vm_sign (-1 or +1: the sign of vm in e) and
+ * nine
  * planes of (H, rp) floats, rp a multiple of SG_VW >= W (rows3 = vb3, vm3, e3, ee3;
  * rows7 = e7, vb7, e3max, e7max; then ee7); blend:
  * out (H, W, 3), error (H, W); z7 > 0: the 7x7 bias mean is tested at z7 standard errors;
@@ -216,7 +219,8 @@ __attribute__((always_inline)) inline vfloat pow2_nonpos(const vint n)
  * order of the additions). SG_VW pixels x0 .. x0 + SG_VW - 1 a work-item (x0 a multiple of
  * SG_VW; lanes past the image's width compute from the padding and are not stored). */
 __kernel void safeguard_rows(__global const float *stats, __global float *rows, int width,
-                             int height, int sp, int rp, __global const float *vscale)
+                             int height, int sp, int rp, __global const float *vscale,
+                             const float vm_sign)
 {
     /* the factor of the halves' variances (safeguard_ratio; 1: independent samples) */
     const float s = vscale[0];
@@ -242,7 +246,7 @@ __kernel void safeguard_rows(__global const float *stats, __global float *rows, 
         const vfloat sd = VLOAD(d2 + k), svb = s * VLOAD(vbp + k), svm = s * VLOAD(vmp + k);
         /* to the segment's units */
         const vfloat f7 = pow2_nonpos(2 * (ex - e7max));
-        const vfloat e = sd - svm - svb;
+        const vfloat e = sd + vm_sign * svm - svb;  /* -1: d2 - vm - vb, bit for bit */
         e7 += f7 * e;
         vb7 += f7 * svb;
         ee7 += (f7 * e) * (f7 * e);

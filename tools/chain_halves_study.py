@@ -42,7 +42,7 @@ from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_passes import bias_tests
+from clrecon.methods.safeguard_passes import bias_tests, models_covariance
 from clrecon.methods.safeguard_reference import (
     _lum2,
     _window_mean,
@@ -109,7 +109,7 @@ def _blend(a, b, ha, hb, ma, mb, vscale: float, with_3x3: bool):
     """The chain's blend (its 7x7 test at 2 standard errors) with or without its 3x3 test
     (the safeguard's reference, ``test3``): its image and its weights."""
     img, _, w = reference_of_halves(a, b, ha, hb, None, ma, mb, sg.MODE_BLEND, sg.GUIDED_Z7,
-                                    vscale, with_3x3)
+                                    vscale, with_3x3, models_covariance(ha + hb))
     return img, w
 
 

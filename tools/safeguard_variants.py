@@ -18,9 +18,12 @@ the device's own image to 0.02 dB). A variant changes one thing:
 * ``se7 1`` / ``se7 2``: the 7x7 mean of ``e`` only where it stands 1 / 2 standard errors
   above zero, as the 3x3 one does;
 * ``shrink7``: the 7x7 mean shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)``;
-* ``cov``: the bias estimate with the covariance of ``m`` and box added back,
-  ``e = d2 - vm - vb + 2 k <mA - mB, boxA - boxB>``: ``m`` averages the pixel's own samples
-  too, so ``E d2 = bias^2 + vm + vb - 2 cov(m, box)`` and the shipped ``e`` is biased low;
+* ``cov``: the bias estimate with the covariance of ``m`` and box added back as the halves
+  estimate it, ``e = d2 - vm - vb + 2 k <mA - mB, boxA - boxB>``: ``m`` averages the pixel's
+  own samples too, so ``E d2 = bias^2 + vm + vb - 2 cov(m, box)`` and ``d2 - vm - vb`` is
+  biased low; ``cov vm``: the covariance modelled as ``vm`` (``e = d2 + vm - vb``, what the
+  library ships from 16 spp since 2026-12-07: ``safeguard_passes.models_covariance``) at every
+  sample count;
 * ``no 3x3``: the bias term without its 3x3 test (the 7x7 mean alone); ``se7 2 no 3x3``:
   the 7x7 mean tested at 2 standard errors alone, as the guided chain's blend runs below
   8 spp (``safeguard_passes.bias_tests``); ``untested 7x7``: the 7x7 mean as it comes (the
@@ -28,7 +31,9 @@ the device's own image to 0.02 dB). A variant changes one thing:
 
 ``shipped`` is the library's estimator at the frame's sample count (below 8 spp its 7x7
 mean is tested at 2 standard errors: ``safeguard_passes.bias_tests``, since 2026-12-07, when
-``se7 2`` was this page's 4-spp winner); the others change one thing from the untested form.
+``se7 2`` was this page's 4-spp winner; from 16 spp its bias term models the covariance);
+the others change one thing from the untested form (``cov``: the covariance's estimate in
+place of the model).
 None of these constants is fitted to the scenes.
 Run: ``python tools/safeguard_variants.py [--size 128] [--spp 8,64] [--scenes ...]``.
 Samples ``seed = 2000 + spp``; references from the trusted device (PoCL).
@@ -46,7 +51,7 @@ from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_passes import bias_tests
+from clrecon.methods.safeguard_passes import bias_tests, models_covariance
 from clrecon.methods.safeguard_reference import (
     _lum2,
     _window_count,
@@ -59,7 +64,7 @@ from clrecon.scenes.builtin import get_scene
 from clrecon.scenes.render import render_reference, render_samples
 
 VARIANTS = ("shipped", "pixel 3sd", "strat", "strat frame", "se7 1", "se7 2", "shrink7",
-            "no 3x3", "se7 2 no 3x3", "untested 7x7", "cov")
+            "no 3x3", "se7 2 no 3x3", "untested 7x7", "cov", "cov vm")
 METHODS = ("sweep", "layered", "splat")
 
 
@@ -100,6 +105,8 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np
     e = _lum2(m - box) - vm - vb
     if variant == "cov":  # + 2 cov(m, box) from the halves, scaled as vb and vm are
         e = e + 2.0 * fac * k * np.mean((ma - mb) * (sa / ha - sb / hb), axis=-1)
+    elif variant == "cov vm" or models_covariance(s):  # + 2 cov modelled as vm
+        e = e + 2.0 * vm
     mu3, se3 = _se(e, 1)
     mu7, se7 = _se(e, 3)
     rel = np.divide(se7, mu7, out=np.full_like(mu7, np.inf), where=mu7 > 0)  # se7 / mu7

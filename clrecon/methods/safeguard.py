@@ -20,7 +20,9 @@ radiance averaged over RGB:
 * ``vm = k |mA - mB|^2`` estimates the method's variance (the halves' images differ by
   noise alone);
 * ``d2 = |m - box|^2`` has expectation ``bias^2 + var(m - box)``, so
-  ``e = d2 - vm - vb`` estimates the method's squared bias; it is averaged over a 7x7 window
+  ``e = d2 - vm - vb`` estimates the method's squared bias (from 16 spp ``d2 + vm - vb``: the
+  covariance of ``m`` and box modelled, ``safeguard_passes.models_covariance``); it is
+  averaged over a 7x7 window
   (a bias is coherent in space, noise is not), and over 3x3 where that mean stands two
   standard errors above zero (a bias along a thin edge, which the wider window dilutes; the
   noise of the 3x3 mean alone would otherwise pull the image toward box at low spp):
@@ -46,27 +48,21 @@ convergence holds from half to frame; below 16 spp the quarters are too few to s
 
 As samples grow, ``vb`` falls like box's error while a method's bias does not: ``w`` goes to
 0 and the image to box's (consistent); where the method is unbiased ``w`` stays near 1.
-
-Range: colours reach 1e30 (squares overflow float32): the kernels keep each pixel's statistics
-in units of its own binary exponent, rescaled to a window's largest before adding: the
-image is exact at any valid colour, the error saturates at FLT_MAX (colours above ~1e19).
+Range: colours reach 1e30: the kernels keep each pixel's statistics in units of its own
+binary exponent, rescaled to a window's largest before adding (the error saturates at
+FLT_MAX, colours above ~1e19).
 
 The method's image. A method whose weights do not depend on the sample count
 (``Pipeline.halves_mean``: all three) blends the mean of its halves' images,
 ``(ha mA + hb mB) / S``, in place of ``m``: its bias is the method's, its variance that of
 the frame's image (exactly for an estimator linear in the samples), and the frame's run is
 saved. layered's ``shared_steps`` (statistics, partition setup) run once on the frame and
-both halves filter those partitions (with their own, 0.39 dB lost on ``bokeh`` at 8 spp).
-Against the blend with the frame's own image (six blurred built-in scenes, 4-16 spp at
-512x512, 32-64 at 256x256): sweep -0.07 to +0.01 dB, splat -0.10 to +0.43, layered -0.13
-(bokeh, 64 spp) to +0.01.
+both halves filter those partitions (measured: the README's safeguard section).
 
-Cost: the method runs on both halves (layered's statistics and partitions on the frame),
-plus a split copy of the fields (none where its passes read each half in place,
-``Pipeline.sample_views``) and three cheap passes (the statistics; the windowed means in
-two separable passes). A method's ``joint_steps`` (layered's reproject) run once on the
-frame for both halves, B's outputs apart: one read of the samples, not two views' (720p 8 spp,
-PoCL: layered's default 251 against 287 ms, 300 MB more; off where B's buffers do not fit).
+Cost: the method runs on both halves, plus a split copy of the fields (none where its
+passes read each half in place, ``Pipeline.sample_views``) and three cheap passes. A method's
+``joint_steps`` (layered's reproject: one read of the samples) run once on the frame for
+both halves, B's outputs apart (off where B's buffers do not fit).
 ``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports).
 """
 from __future__ import annotations
@@ -86,6 +82,7 @@ from clrecon.methods.safeguard_passes import (
     bias_tests,
     halves,
     measures_convergence,
+    models_covariance,
 )
 
 # the NumPy reference and the blend kernel's modes live in their own module; re-exported
@@ -360,7 +357,8 @@ class Safeguarded(Pipeline):
             return self.passes.run_blend(queue, b["stats"], b["rows"], b["box"], m,
                                          b["out"], b["error"], f.width, f.height, self.mode, 1,
                                          wait_for, GUIDED_Z7 if t7 else 0.0,
-                                         b["sg_scale"] if self.scaled else None, t3)
+                                         b["sg_scale"] if self.scaled else None, t3,
+                                         models_covariance(f.spp))
         return run
 
     # -- protocol ----------------------------------------------------------------------------
@@ -382,6 +380,8 @@ class Safeguarded(Pipeline):
         d["safeguard_bias_tests"] = {"7x7 at 2 se": t7, "3x3 at 2 se": t3}
         if self.scaled:
             d["safeguard_convergence"] = "measured (the halves' variances scaled by it)"
+        if models_covariance(self.info.spp):
+            d["safeguard_covariance"] = "modelled as the method's variance (e = d2 + vm - vb)"
         if self.halves_mean:
             d["safeguard_image"] = "the mean of the halves' images"
         if self.joint:

@@ -43,6 +43,30 @@ def measures_convergence(spp: int) -> bool:
     return halves(int(spp))[0] // 2 >= MIN_QUARTER
 
 
+def models_covariance(spp: int) -> bool:
+    """Whether the blend's bias term adds back the covariance of the method's image and
+    box, modelled as the method's variance: ``e = d2 + vm - vb`` instead of ``d2 - vm - vb``.
+
+    ``m`` averages each pixel's own samples too, so ``var(m - box) = vm + vb - 2 cov(m, box)``
+    and ``d2 - vm - vb`` is biased low by ``2 cov``: a biased method keeps weight where box is
+    the better (the 64-spp cells below box). The halves estimate ``cov`` as ``k <mA - mB,
+    boxA - boxB>``, unbiased but noisy: its positive part cost 0.2-0.85 dB where the method is
+    unbiased and every point of weight counts (huge_coc,
+    ``docs/measurements/convergence-pocl-128-spatial.md``). A model instead: a smoothing with
+    non-negative weights ``h`` (sum 1) has ``cov(m, box) = h0 vb`` and ``var(m) = sum(h^2)
+    vb``, ``h0`` the weight of the pixel's own samples; for a box kernel (and a disc PSF)
+    ``h0 = sum(h^2)``, so ``cov = vm``, and for a kernel peaked at its own pixel ``h0 >
+    sum(h^2)``: ``vm`` is a lower bound. It adds no noise beyond ``vm``'s own. Applied where
+    the halves' variances are measured (:func:`measures_convergence`, from 16 spp): with
+    the halves' unscaled variances at 8 spp it cost 0.14-0.49 dB on huge_coc (128x128, 4
+    seeds), so below 16 spp ``e`` stays as it was. From 16 spp
+    (``docs/measurements/convergence-pocl-128-covariance.md``): the 64-spp cells more than
+    0.5 dB below box went from 7 to 4 (sweep on fence, spheres, bokeh; layered on spheres),
+    huge_coc -0.07 to -0.37 dB. The guided chain's blend toward its guide keeps ``d2 - vm -
+    vb`` (its reference is the refinement, not box)."""
+    return measures_convergence(spp)
+
+
 def bias_tests(guided: bool, spp: int) -> tuple[bool, bool]:
     """``(test7, test3)`` of the blend's bias term: whether its 7x7 mean must stand 2
     standard errors above zero (``safeguard.GUIDED_Z7``), and whether it keeps the 3x3 mean
@@ -149,21 +173,26 @@ class SafeguardPasses:
         return [ev, cl.enqueue_nd_range_kernel(queue, self.ratio, (1,), None, wait_for=[ev])]
 
     def run_blend(self, queue, stats, rows, box, m, out, error, w, h, mode, write_error,
-                  wait_for=None, z7: float = 0.0, vscale=None, test3: bool = True):
+                  wait_for=None, z7: float = 0.0, vscale=None, test3: bool = True,
+                  cov: bool = False):
         """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
         ("safeguard_blend", ev)]. ``z7 > 0``: the 7x7 bias mean is tested at ``z7``
         standard errors, as the 3x3 one at 2; ``test3=False``: the bias term leaves the
         3x3 test out (:func:`bias_tests`). ``vscale``: the halves' variances' factor
-        (:meth:`run_ratio`'s buffer; None: 1)."""
-        ev = self.run_rows(queue, stats, rows, w, h, wait_for, vscale)
+        (:meth:`run_ratio`'s buffer; None: 1). ``cov``: the bias term adds back the
+        covariance of the method's image and box, modelled as ``vm`` (``e = d2 + vm - vb``;
+        :func:`models_covariance`)."""
+        ev = self.run_rows(queue, stats, rows, w, h, wait_for, vscale, cov)
         return [("safeguard_rows", ev), ("safeguard_blend", self.run_blend_only(
             queue, rows, box, m, out, error, w, h, mode, write_error, [ev], z7, test3))]
 
-    def run_rows(self, queue, stats, rows, w, h, wait_for=None, vscale=None):
-        """The windowed sums' row segments alone (``vscale`` as for :meth:`run_blend`)."""
+    def run_rows(self, queue, stats, rows, w, h, wait_for=None, vscale=None, cov=False):
+        """The windowed sums' row segments alone (``vscale``, ``cov`` as for
+        :meth:`run_blend`)."""
         sp, rp = self.stats_pitch(w), self.rows_pitch(w)
         self.rows.set_args(stats, rows, np.int32(w), np.int32(h), np.int32(sp), np.int32(rp),
-                           self.one if vscale is None else vscale)
+                           self.one if vscale is None else vscale,
+                           np.float32(1.0 if cov else -1.0))
         return cl.enqueue_nd_range_kernel(queue, self.rows, (rp // self.vw, h), None,
                                           wait_for=wait_for)
 

@@ -58,23 +58,26 @@ def variance_scale(color: np.ndarray) -> float:
 
 
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
-              z7: float = 0.0, test3: bool = True):
+              z7: float = 0.0, test3: bool = True, cov: bool | None = None):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
-    The halves' variances are scaled by :func:`variance_scale`."""
+    The halves' variances are scaled by :func:`variance_scale`; ``cov`` (None: from 16
+    spp, as the pipeline: ``safeguard_passes.models_covariance``) as for
+    :func:`reference_of_halves`."""
     s = color.shape[2]
     ha, hb = halves(s)
     if m is None and ma is not None:
         m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
     c = color.astype(np.float64)
+    cov = measures_convergence(s) if cov is None else bool(cov)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
-                               mode, z7, variance_scale(c), test3)[:2]
+                               mode, z7, variance_scale(c), test3, cov)[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
                         mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0,
-                        test3: bool = True):
+                        test3: bool = True, cov: bool = False):
     """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
     ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
     half estimates, as the guided refinement's blend toward its guide takes) and the
@@ -82,7 +85,9 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     ``mode`` is the blend). ``z7 > 0``: the 7x7 bias mean must stand ``z7`` standard errors
     above zero (the guided refinement's chain), as the 3x3 mean must stand 2. ``vscale``:
     the factor of the halves' variances (:func:`variance_scale`; 1: independent samples).
-    ``test3=False``: the bias term leaves the 3x3 test out (``safeguard_passes.bias_tests``)."""
+    ``test3=False``: the bias term leaves the 3x3 test out (``safeguard_passes.bias_tests``).
+    ``cov``: the covariance of the method's image and box added back, modelled as ``vm``:
+    ``e = d2 + vm - vb`` (``safeguard_passes.models_covariance``)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     s = ha + hb
     box = (ha * a + hb * b) / s
@@ -96,7 +101,7 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     m = m.astype(np.float64)
     d2 = _lum2(m - box)
     vm = vscale * k * _lum2(ma.astype(np.float64) - mb)
-    e = d2 - vm - vb
+    e = d2 + vm - vb if cov else d2 - vm - vb
     mu3 = _window_mean(e, 1)
     n3 = _window_count(e.shape, 1)
     se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)

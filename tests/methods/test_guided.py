@@ -15,7 +15,7 @@ from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import guided as gd
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard import reference_of_halves
-from clrecon.methods.safeguard_passes import bias_tests
+from clrecon.methods.safeguard_passes import bias_tests, models_covariance
 from clrecon.methods.safeguard_reference import variance_scale
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
@@ -58,7 +58,8 @@ def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend
         want, _, _ = reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha,
                                          buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
                                          sg.GUIDED_Z7, variance_scale(c),
-                                         bias_tests(True, buf.spp)[1])
+                                         bias_tests(True, buf.spp)[1],
+                                         models_covariance(buf.spp))
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()
     assert d["guided"] == 2 and d["safeguard"] is safeguard

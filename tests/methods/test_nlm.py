@@ -17,7 +17,7 @@ from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import nlm
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard import reference_of_halves
-from clrecon.methods.safeguard_passes import bias_tests
+from clrecon.methods.safeguard_passes import bias_tests, models_covariance
 from clrecon.methods.safeguard_reference import variance_scale
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
@@ -55,7 +55,7 @@ def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp
         want, _, _ = reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha,
                                          buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
                                          sg.GUIDED_Z7 if tests[0] else 0.0, variance_scale(c),
-                                         tests[1])
+                                         tests[1], models_covariance(buf.spp))
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()
     assert d["nlm"] == 3 and d["nlm_scales"] == scales and "nlm" in d["plan"]

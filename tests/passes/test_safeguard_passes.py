@@ -10,13 +10,20 @@ import pytest
 from conftest import assert_close
 
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_passes import SafeguardPasses, measures_convergence
+from clrecon.methods.safeguard_passes import (
+    SafeguardPasses,
+    measures_convergence,
+    models_covariance,
+)
 from clrecon.methods.safeguard_reference import variance_scale
 
 
-def _run(device, color, m, ma, mb, mode, vw, z7=0.0, test3=True):
+def _run(device, color, m, ma, mb, mode, vw, z7=0.0, test3=True, cov=None):
+    """The passes as the pipeline runs them (``cov=None``: the covariance term where the
+    pipeline models it, from 16 spp)."""
     ctx, q = device.context, device.queue
     h, w, s, _ = color.shape
+    cov = models_covariance(s) if cov is None else cov
     passes = SafeguardPasses(ctx, vw)
     mf = cl.mem_flags
 
@@ -42,7 +49,7 @@ def _run(device, color, m, ma, mb, mode, vw, z7=0.0, test3=True):
         partial = up(np.full(passes.ratio_bytes(h) // 4, np.nan))
         ev = passes.run_ratio(q, stats, partial, vscale, w, h, s, [ev])[-1]
     passes.run_blend(q, stats, rows, box, m_in, out, err, w, h, mode, 1, [ev],
-                     z7, vscale, test3)[-1][1].wait()
+                     z7, vscale, test3, cov)[-1][1].wait()
     img, e = np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32)
     cl.enqueue_copy(q, img, out)
     cl.enqueue_copy(q, e, err)
@@ -182,3 +189,30 @@ def test_bias_tests_rule():
         low = s < 8
         assert bias_tests(False, s) == (low, True), s
         assert bias_tests(True, s) == (True, not low), s
+
+
+@pytest.mark.parametrize("s", [5, 16])
+@pytest.mark.parametrize("mode", [sg.MODE_METHOD, sg.MODE_BLEND])
+@pytest.mark.parametrize("vw", [1, 16])
+def test_covariance_term_matches_reference(device, vw, mode, s):
+    """The bias term with the covariance of m and box modelled as vm (e = d2 + vm - vb) and
+    without it, at 5 and 16 spp, against the reference; the two differ (a kernel that ignores
+    the flag fails one of them), and the pipeline's choice is the term from 16 spp."""
+    assert models_covariance(16) and not models_covariance(8)
+    rng = np.random.default_rng(vw + 10 * mode + s)
+    h, w = 9, 21
+    color = _stratified_colours(rng, h, w, s, iid=False).astype(np.float32)
+    ma, mb = (color.mean(2) + 0.3 * rng.random((h, w, 3)).astype(np.float32) for _ in range(2))
+    m = (0.5 * (ma + mb)).astype(np.float32)
+    m[h // 2, :] += 0.4  # a bias row: the windows' bias means are not all clamped to 0
+    got = {}
+    for cov in (False, True):
+        res = _run(device, color, m, ma, mb, mode, vw, cov=cov)
+        img, err = res[0], res[1]
+        want_img, want_err = sg.reference(color, m, ma, mb, mode=mode, cov=cov)
+        scale = float(np.abs(want_img).max())
+        assert_close(img, want_img, rtol=1e-4, atol=1e-5 * scale, what=f"image cov={cov}")
+        assert_close(err, want_err, rtol=1e-3, atol=1e-6 * scale ** 2, what=f"error cov={cov}")
+        got[cov] = err
+    assert np.abs(got[True] - got[False]).max() > 1e-3 * float(np.abs(got[False]).max())
+    assert (got[True] >= got[False] - 1e-6).all()  # +2 vm in e: never a smaller bias term
