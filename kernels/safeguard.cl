@@ -29,9 +29,8 @@
  * the guided refinement's blend toward its guide), stats: five planes
  * (d2, vb, vm, e, dq) of (H, sp) floats, pixel x at column x + 3, sp >= rp + 6, the columns
  * outside the image 0 and e = SG_PAD_E (dq written only with quarters = 1); rows: vscale
- * (1 float, kernels/safeguard_ratio.cl's scale or 1), vm_sign (-1 or +1: the sign of vm in e) and
- * nine
- * planes of (H, rp) floats, rp a multiple of SG_VW >= W (rows3 = vb3, vm3, e3, ee3;
+ * (1 float, kernels/safeguard_ratio.cl's scale or 1), vm_sign (-1 or +1: the sign of vm in
+ * e) and nine planes of (H, rp) floats, rp a multiple of SG_VW >= W (rows3 = vb3, vm3, e3, ee3;
  * rows7 = e7, vb7, e3max, e7max; then ee7); blend:
  * out (H, W, 3), error (H, W); z7 > 0: the 7x7 bias mean is tested at z7 standard errors;
  * test3 = 0: the bias term leaves the 3x3 mean out (the guided chain below 8 spp).

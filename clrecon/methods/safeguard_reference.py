@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clrecon.methods.safeguard_passes import halves, measures_convergence
+from clrecon.methods.safeguard_passes import halves, measures_convergence, models_covariance
 
 _FLT_MAX = float(np.finfo(np.float32).max)  # the error image saturates there
 
@@ -70,7 +70,7 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
     if m is None and ma is not None:
         m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
     c = color.astype(np.float64)
-    cov = measures_convergence(s) if cov is None else bool(cov)
+    cov = models_covariance(s) if cov is None else bool(cov)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
                                mode, z7, variance_scale(c), test3, cov)[:2]
 
