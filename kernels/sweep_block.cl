@@ -41,6 +41,9 @@
 #ifndef SUPER
 #define SUPER 1  /* a work-item's blocks per side: 1 or 2 */
 #endif
+#ifndef UNIFORM_BOX
+#define UNIFORM_BOX 1  /* 0: every window is sorted and swept (the uniform windows too) */
+#endif
 #define BS 4                 /* block side: 16 pixels, float16 lanes */
 #define BW (BS + 2 * R)      /* side of the block's window */
 #define BN (BW * BW * SPP)   /* most samples in the window */
@@ -179,6 +182,111 @@ inline void sweep_block_step(sweep_block_state *st, const sweep_block_masks *mk,
     st->b = fma(w, (float16)(c.z), st->b);
 }
 
+/* The box radius k that alone weighs a sample whose record holds u (the blend with two
+ * scales, D with four), or -1 where the sample's weight mixes boxes. With two scales a blend
+ * of exactly 1 takes the 5x5 box alone (k = 2) and 0 the 1x1 box (k = 0); with four, D's band
+ * picks one box (as sweep_block_step's branches). */
+inline int sweep_block_radius(const float u)
+{
+#if SCALES == 2
+    return u >= 1.0f ? 2 : (u == 0.0f ? 0 : -1);
+#else
+    return u > 7.0f ? 3 : (u > 5.0f ? 2 : (u > 3.0f ? 1 : 0));
+#endif
+}
+
+/* A window whose every sample weighs in the same one box of radius k (sweep_block_radius):
+ * the sweep's coverage terms of the other boxes stay zero, so every sample's weight in a
+ * lane is that box's constant (zero outside the lane's box), whatever the depth order, and
+ * Algorithm 2's sum reduces to the mean of the samples of the (2k+1)^2 pixels around each
+ * pixel (those in the image): no sort, no sweep. (With two scales the update of
+ * sweep_block_step with blend 1 keeps cov_1 = 0 and gives w = w_5 exactly; with blend 0,
+ * cov_5 = 0 and w = w_1; with four, each branch with the other three coverages zero gives
+ * w = w_k. With EXPONENT_ON the constant raised to EXPONENT cancels in the division too.)
+ * rec: the window's records in window order (rows ty0 .. ty1 - 1, columns tx0 .. tx1 - 1 of
+ * the SW x SW window with origin (x0, y0), SPP a pixel). pl: 3 SW^2 floats of local scratch
+ * (the two sort buffers, unused here: 16 SN >= 12 SW^2 bytes at any SPP), the pixels' mean colours as r, g, b planes, zero outside the
+ * image. The box sums run along rows and then columns in SB-wide vectors (a row of a
+ * work-item's outputs); each mean is scaled as it is summed, so no partial sum exceeds the
+ * largest colour. */
+#if SB == 8
+#define floatSB float8
+#define intSB int8
+#define convert_floatSB convert_float8
+#define vloadSB vload8
+#define SB_LANES (int8)(0, 1, 2, 3, 4, 5, 6, 7)
+#else
+#define floatSB float4
+#define intSB int4
+#define convert_floatSB convert_float4
+#define vloadSB vload4
+#define SB_LANES (int4)(0, 1, 2, 3)
+#endif
+inline void sweep_block_uniform(__local const float4 *rec, __local float *pl, const int x0,
+                                const int y0, const int width, const int height, const int k,
+                                __global float *out)
+{
+    const int tx0 = max(0, -x0), tx1 = min(SW, width - x0);
+    const int ty0 = max(0, -y0), ty1 = min(SW, height - y0);
+    const float ns_inv = 1.0f / SPP;
+    for (int q = 0; q < 3 * SW * SW; ++q)
+        pl[q] = 0.0f;
+    for (int ty = ty0, i = 0; ty < ty1; ++ty)
+        for (int tx = tx0; tx < tx1; ++tx) {
+            float3 m = (float3)(0.0f);
+            for (int j = 0; j < SPP; ++j, ++i)
+                m = fma(rec[i].yzw, (float3)(ns_inv), m);
+            pl[ty * SW + tx] = m.x;
+            pl[SW * SW + ty * SW + tx] = m.y;
+            pl[2 * SW * SW + ty * SW + tx] = m.z;
+        }
+    /* each output's box, clipped to the image: 1 / its pixel count, by column and by row */
+    const intSB o = SB_LANES;
+    const intSB nx = min(tx1 - 1, R + o + k) - max(tx0, R + o - k) + 1;
+    const intSB ny = min(ty1 - 1, R + o + k) - max(ty0, R + o - k) + 1;
+    const floatSB ix = 1.0f / convert_floatSB(nx), iy = 1.0f / convert_floatSB(ny);
+    /* rows: the horizontal box sum of every window row an output's box reaches, per plane */
+    floatSB hr[SW], hg[SW], hb[SW];
+    for (int ty = R - k; ty < R + SB + k; ++ty) {
+        floatSB r = (floatSB)(0.0f), g = r, b = r;
+        for (int dx = -k; dx <= k; ++dx) {
+            const int at = ty * SW + R + dx;
+            r += vloadSB(0, pl + at);
+            g += vloadSB(0, pl + SW * SW + at);
+            b += vloadSB(0, pl + 2 * SW * SW + at);
+        }
+        hr[ty] = r * ix;
+        hg[ty] = g * ix;
+        hb[ty] = b * ix;
+    }
+    for (int oy = 0; oy < SB; ++oy) {
+        const int py = y0 + R + oy;
+        if (py >= height)
+            break;
+        floatSB r = (floatSB)(0.0f), g = r, b = r;
+        for (int ty = R + oy - k; ty <= R + oy + k; ++ty) {
+            r += hr[ty];
+            g += hg[ty];
+            b += hb[ty];
+        }
+        float vr[SB], vg[SB], vb[SB], f[SB];
+#if SB == 8
+        vstore8(r, 0, vr);
+        vstore8(g, 0, vg);
+        vstore8(b, 0, vb);
+        vstore8(iy, 0, f);
+#else
+        vstore4(r, 0, vr);
+        vstore4(g, 0, vg);
+        vstore4(b, 0, vb);
+        vstore4(iy, 0, f);
+#endif
+        for (int ox = 0; ox < SB && x0 + R + ox < width; ++ox)
+            vstore3((float3)(vr[ox], vg[ox], vb[ox]) * f[oy], pixel_index(x0 + R + ox, py, width),
+                    out);
+    }
+}
+
 __kernel __attribute__((reqd_work_group_size(GROUP, 1, 1)))
 void sweep_block(__global const float *color, __global const float *depth,
                  __global const float *motion, const int stride, const int offset,
@@ -199,6 +307,7 @@ void sweep_block(__global const float *color, __global const float *depth,
      * index | window column tx << 16 | window row ty << 20 */
     int n = 0;
     uint lo = sweep_depth_key(INFINITY), top = 0;  /* smallest key, largest finite one */
+    int klo = 4, khi = -1;  /* the smallest and largest sweep_block_radius of the window */
     for (int ty = max(0, -y0); ty < min(SW, height - y0); ++ty) {
         for (int tx = max(0, -x0); tx < min(SW, width - x0); ++tx) {
             const int base = pixel_index(x0 + tx, y0 + ty, width) * stride + offset;
@@ -216,6 +325,11 @@ void sweep_block(__global const float *color, __global const float *depth,
                 d *= dscale;
 #endif
                 lrec[lid][n] = (float4)(d, vload3(g, color));
+#if UNIFORM_BOX
+                const int k = sweep_block_radius(d);
+                klo = min(klo, k);
+                khi = max(khi, k);
+#endif
                 const uint key = sweep_depth_key(z);
                 lo = min(lo, key);
                 top = max(top, as_uint(z) < 0x7F800000u ? key : 0u);
@@ -223,6 +337,13 @@ void sweep_block(__global const float *color, __global const float *depth,
             }
         }
     }
+#if UNIFORM_BOX
+    if (klo == khi && klo >= 0) {  /* one box weighs every sample: its mean, unsorted */
+        sweep_block_uniform(lrec[lid], (__local float *)lsort[lid], x0, y0, width,
+                            height, klo, out);
+        return;
+    }
+#endif
     __local const ulong *sorted = sweep_block_sort(lsort[lid][0], lsort[lid][1], n, lo,
                                                      max(top + 1, lo));
 #if SUPER > 1

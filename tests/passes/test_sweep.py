@@ -124,6 +124,79 @@ def test_block_kernel_one_or_four_blocks_per_work_item(device, rng, supers, shap
     assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"block supers={supers} {knobs}")
 
 
+def _banded_frame(rng, scales):
+    """A frame of five 24-row bands: every sample far out of focus (blend 1 / the 7x7 box),
+    in focus and still (blend 0 / 1x1), D in 3.2-3.9 (mixed blends / the 3x3 box), D in
+    5.5-6.7 (mixed / 5x5), and the random frame; so sweep_block meets windows whose every
+    sample weighs in one box, of each radius, and mixed ones."""
+    band = 24
+    buf = frame(rng, 5 * band, 20, 4)
+    ranges = [(20.0, 40.0), (3.95, 4.05), (5.0, 5.3), (6.1, 6.9)]
+    for b, (lo, hi) in enumerate(ranges):
+        rows = slice(b * band, (b + 1) * band)
+        buf.depth[rows] = rng.uniform(lo, hi, buf.depth[rows].shape)
+        buf.motion[rows] = 0.0
+    buf.depth[:band][rng.uniform(size=buf.depth[:band].shape) < 0.1] = np.inf  # misses
+    buf.motion[:band, :, :2] = rng.normal(0.0, 1.0, buf.motion[:band, :, :2].shape)
+    buf = buf.validate()
+    d = ref.denoising_diameter(buf)
+    want = [(12.0, 17.0), (0.0, 0.5), (3.1, 4.0), (5.3, 6.9)]
+    for b, (lo, hi) in enumerate(want):  # the bands' diameters, as designed
+        db = d[b * band:(b + 1) * band]
+        assert lo < db.min() and db.max() < hi, (b, db.min(), db.max())
+    return buf, d
+
+
+def _box_radius(d, scales):
+    """NumPy's sweep_block_radius of diameters d: the one box that weighs each sample alone
+    (-1: mixed)."""
+    if scales == 2:
+        blend = np.clip((d - 1) / 5, 0, 1)
+        return np.where(blend >= 1, 2, np.where(blend == 0, 0, -1))
+    return np.select([d > 7, d > 5, d > 3], [3, 2, 1], 0)
+
+
+@pytest.mark.parametrize("supers", [1, 2])
+@pytest.mark.parametrize("scales", [2, 4])
+@pytest.mark.parametrize("exponent", [1.0, 1.3])
+def test_block_kernel_windows_of_one_box(device, rng, supers, scales, exponent):
+    """A window whose every sample weighs in one box alone is that box's mean, computed
+    without the sort: the image is the reference's, and the sorted sweep's (UNIFORM_BOX=0)
+    to float rounding, on a frame that has such windows of every radius and mixed ones."""
+    import pyopencl as cl
+
+    from clrecon.core.pipeline import DeviceSamples
+    from clrecon.methods.sweep.block import BLOCK, SweepBlock, block_local_bytes
+
+    if block_local_bytes(scales, 4, 1, supers) > device.device.local_mem_size:
+        pytest.skip("the device's local memory does not hold the window")
+    buf, d = _banded_frame(rng, scales)
+    h, w = buf.height, buf.width
+    # the work-items' windows this frame gives: one box alone in some (of each radius the
+    # scales have), mixed in others
+    r, side = (2 if scales == 2 else 3), BLOCK * supers
+    k = _box_radius(d, scales)
+    seen = set()
+    for y0 in range(-r, h - r, side):
+        for x0 in range(-r, w - r, side):
+            kw = k[max(0, y0):y0 + side + 2 * r, max(0, x0):x0 + side + 2 * r]
+            seen.add(int(kw.min()) if kw.min() == kw.max() else -1)
+    assert seen == ({-1, 0, 2} if scales == 2 else {-1, 0, 1, 2, 3}), seen
+    samples = DeviceSamples.upload(device.queue, buf)
+    images = []
+    for uniform in (True, False):
+        sweep = SweepBlock(device.context, 4, scales, exponent, True, supers=supers,
+                           uniform_box=uniform)
+        out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, h * w * 12)
+        sweep(device.queue, samples, 1.0, out).wait()
+        got = np.empty((h, w, 3), np.float32)
+        cl.enqueue_copy(device.queue, got, out).wait()
+        images.append(got)
+    want = ref.reconstruct(buf, scales=scales, exponent=exponent)
+    assert_close(images[0], want, rtol=2e-4, atol=2e-5, what="one-box windows vs reference")
+    assert_close(images[0], images[1], rtol=2e-5, atol=2e-6, what="one-box vs sorted sweep")
+
+
 def test_block_kernel_refuses_bad_supers(device):
     from clrecon.methods.sweep.block import SweepBlock
 

@@ -66,9 +66,12 @@ class SweepBlock:
 
     def __init__(self, context: cl.Context, spp: int, scales: int = 2, exponent: float = 1.0,
                  smooth_motion: bool = True, group: int = 1, supers: int | None = None,
-                 depth_key_shift: int = DEPTH_KEY_SHIFT):
+                 depth_key_shift: int = DEPTH_KEY_SHIFT, uniform_box: bool = True):
         """``depth_key_shift``: low mantissa bits of a depth the front-to-back order
-        ignores (``kernels/sweep_order.h``; 0: the exact order)."""
+        ignores (``kernels/sweep_order.h``; 0: the exact order). ``uniform_box=False``
+        sorts and sweeps every window, also those whose every sample weighs in one box
+        alone (whose image is that box's mean, computed without the sort by default: the
+        tests compare the two)."""
         if scales not in (2, 4):
             raise ValueError(f"scales: must be 2 or 4, got {scales}")
         if not exponent > 0:
@@ -97,7 +100,8 @@ class SweepBlock:
         self.defines = {
             "SPP": spp, "SCALES": scales, "SMOOTH_MOTION": smooth_motion,
             "EXPONENT": float(exponent), "EXPONENT_ON": exponent != 1.0, "GROUP": self.group,
-            "SUPER": self.supers, "DEPTH_KEY_SHIFT": int(depth_key_shift)}
+            "SUPER": self.supers, "DEPTH_KEY_SHIFT": int(depth_key_shift),
+            "UNIFORM_BOX": bool(uniform_box)}
         self.kernel = get_kernel(context, "sweep_block", "sweep_block", self.defines)
         check_kernel_fits(self.kernel, dev, self.name, self.group,
                           f"group {self.group} at {spp} spp")

@@ -18,7 +18,9 @@ Conventions shared with the kernels (and not fixed by the paper):
 * Denoising diameter (the paper's default, a knob): ``D = scale * max(2 |coc(w)|, |motion|)``
   with the motion term only when motion is smoothed.
 * ``exponent`` (the paper's 1.3 variant): each sample's weight ``w`` is raised to it before
-  it enters ``cov`` and ``sum``; the coverage terms themselves are not.
+  it enters ``cov`` and ``sum``; the coverage terms themselves are not. A weight that is not
+  positive then weighs zero (Appendix B's can be negative where coverages sum past 1), as in
+  the kernels.
 * The three-layer depth-of-field variant: a sample's blend ``b = clamp((D - 1) / 5, 0, 1)``
   (Appendix A) splits it between a wide layer, with weight ``b``, and the narrow (in-focus)
   layer, with weight ``1 - b``; the wide layer is the near one when the sample is in front of
@@ -97,6 +99,15 @@ def _gather(buf: SampleBuffer, radius: int, diameter: np.ndarray,
     return out
 
 
+def _raised(wgt, exponent: float):
+    """A weight raised to ``exponent``: with ``exponent != 1`` a weight that is not positive
+    (Appendix B's coverage can exceed 1 and make one negative) weighs zero, as the kernels'
+    ``exp2(exponent * log2(w))`` for ``w > 0`` (a negative power would be NaN)."""
+    if exponent == 1.0:
+        return wgt
+    return np.where(wgt > 0, np.abs(wgt) ** exponent, 0.0)
+
+
 def sweep_two_scale(buf: SampleBuffer, diameter: np.ndarray, exponent: float = 1.0,
                     shift: int = DEPTH_KEY_SHIFT):
     """Appendix A: 1x1 and 5x5 blocks, blended. Returns (H, W, 3) float64."""
@@ -115,7 +126,7 @@ def sweep_two_scale(buf: SampleBuffer, diameter: np.ndarray, exponent: float = 1
         cov_5 = cov_5 + blend * (w_5 * (1 - cov_1))
         wgt = wgt + (1 - blend) * (w_1 * (1 - cov_5) + w_5 * cov_5)
         cov_1 = cov_1 + (1 - blend) * (w_1 * (1 - cov_5))
-        wgt = wgt ** exponent
+        wgt = _raised(wgt, exponent)
         cov = cov + wgt
         total += wgt[..., None] * np.stack([g["r"][..., i], g["g"][..., i], g["b"][..., i]], -1)
     return total / cov[..., None]
@@ -145,7 +156,7 @@ def sweep_four_scale(buf: SampleBuffer, diameter: np.ndarray, exponent: float = 
         n3 = c3 + s3 * w3 * (1 - c1 - c5 - c7)
         n1 = c1 + s1 * w1 * (1 - c3 - c5 - c7)
         c1, c3, c5, c7 = n1, n3, n5, n7
-        wgt = wgt ** exponent
+        wgt = _raised(wgt, exponent)
         cov = cov + wgt
         total += wgt[..., None] * np.stack([g["r"][..., i], g["g"][..., i], g["b"][..., i]], -1)
     return total / cov[..., None]
