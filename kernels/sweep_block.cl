@@ -182,6 +182,23 @@ inline void sweep_block_step(sweep_block_state *st, const sweep_block_masks *mk,
     st->b = fma(w, (float16)(c.z), st->b);
 }
 
+/* A sample's u (its record's first field): the blend clamp((D - 1) / 5, 0, 1) with two
+ * scales, D itself with four; D = dscale * max(2 |coc(z)|, |motion|) */
+inline float sweep_block_u(const float z, __global const float *motion, const int g,
+                           const float c0, const float c1, const float dscale)
+{
+    float d = 2.0f * fabs(c0 / z + c1);
+#if SMOOTH_MOTION
+    const float2 m = vload2(g, motion);
+    d = max(d, sqrt(fma(m.x, m.x, m.y * m.y)));
+#endif
+#if SCALES == 2
+    return clamp((dscale * d - 1.0f) * 0.2f, 0.0f, 1.0f);  /* the blend, once */
+#else
+    return d * dscale;
+#endif
+}
+
 /* The box radius k that alone weighs a sample whose record holds u (the blend with two
  * scales, D with four), or -1 where the sample's weight mixes boxes. With two scales a blend
  * of exactly 1 takes the 5x5 box alone (k = 2) and 0 the 1x1 box (k = 0); with four, D's band
@@ -203,8 +220,8 @@ inline int sweep_block_radius(const float u)
  * sweep_block_step with blend 1 keeps cov_1 = 0 and gives w = w_5 exactly; with blend 0,
  * cov_5 = 0 and w = w_1; with four, each branch with the other three coverages zero gives
  * w = w_k. With EXPONENT_ON the constant raised to EXPONENT cancels in the division too.)
- * rec: the window's records in window order (rows ty0 .. ty1 - 1, columns tx0 .. tx1 - 1 of
- * the SW x SW window with origin (x0, y0), SPP a pixel). pl: 3 SW^2 floats of local scratch
+ * The window is the SW x SW pixels from (x0, y0), those in the image (rows ty0 .. ty1 - 1,
+ * columns tx0 .. tx1 - 1); colours as sweep_block reads them. pl: 3 SW^2 floats of local scratch
  * (the two sort buffers, unused here: 16 SN >= 12 SW^2 bytes at any SPP), the pixels' mean colours as r, g, b planes, zero outside the
  * image. The box sums run along rows and then columns in SB-wide vectors (a row of a
  * work-item's outputs); each mean is scaled as it is summed, so no partial sum exceeds the
@@ -222,7 +239,8 @@ inline int sweep_block_radius(const float u)
 #define vloadSB vload4
 #define SB_LANES (int4)(0, 1, 2, 3)
 #endif
-inline void sweep_block_uniform(__local const float4 *rec, __local float *pl, const int x0,
+inline void sweep_block_uniform(__global const float *color, const int stride,
+                                const int offset, __local float *pl, const int x0,
                                 const int y0, const int width, const int height, const int k,
                                 __global float *out)
 {
@@ -231,11 +249,12 @@ inline void sweep_block_uniform(__local const float4 *rec, __local float *pl, co
     const float ns_inv = 1.0f / SPP;
     for (int q = 0; q < 3 * SW * SW; ++q)
         pl[q] = 0.0f;
-    for (int ty = ty0, i = 0; ty < ty1; ++ty)
+    for (int ty = ty0; ty < ty1; ++ty)
         for (int tx = tx0; tx < tx1; ++tx) {
+            const int base = pixel_index(x0 + tx, y0 + ty, width) * stride + offset;
             float3 m = (float3)(0.0f);
-            for (int j = 0; j < SPP; ++j, ++i)
-                m = fma(rec[i].yzw, (float3)(ns_inv), m);
+            for (int j = 0; j < SPP; ++j)
+                m = fma(vload3(base + j, color), (float3)(ns_inv), m);
             pl[ty * SW + tx] = m.x;
             pl[SW * SW + ty * SW + tx] = m.y;
             pl[2 * SW * SW + ty * SW + tx] = m.z;
@@ -305,31 +324,40 @@ void sweep_block(__global const float *color, __global const float *depth,
      * lrec, read in order from the buffer (u: the blend clamp((D - 1) / 5, 0, 1) with two
      * scales, D itself with four); its sort entry: depth bits << 32 | the record's
      * index | window column tx << 16 | window row ty << 20 */
+#if UNIFORM_BOX
+    /* First the window's box radii alone (depth and motion read, no colour, nothing stored):
+     * where one box weighs every sample, that box's mean (sweep_block_uniform); a mixed
+     * window stops at its first pixel that differs and is sorted and swept below. */
+    {
+        const int tx0 = max(0, -x0), ty0 = max(0, -y0);
+        const int g0 = pixel_index(x0 + tx0, y0 + ty0, width) * stride + offset;
+        const int k0 = sweep_block_radius(sweep_block_u(depth[g0], motion, g0, c0, c1,
+                                                        dscale));
+        bool one = k0 >= 0;
+        for (int ty = ty0; one && ty < min(SW, height - y0); ++ty)
+            for (int tx = tx0; one && tx < min(SW, width - x0); ++tx) {
+                const int base = pixel_index(x0 + tx, y0 + ty, width) * stride + offset;
+                for (int s = 0; s < SPP; ++s)
+                    one &= sweep_block_radius(sweep_block_u(depth[base + s], motion, base + s,
+                                                            c0, c1, dscale)) == k0;
+            }
+        if (one) {
+            sweep_block_uniform(color, stride, offset, (__local float *)lsort[lid], x0, y0,
+                                width, height, k0, out);
+            return;
+        }
+    }
+#endif
     int n = 0;
     uint lo = sweep_depth_key(INFINITY), top = 0;  /* smallest key, largest finite one */
-    int klo = 4, khi = -1;  /* the smallest and largest sweep_block_radius of the window */
     for (int ty = max(0, -y0); ty < min(SW, height - y0); ++ty) {
         for (int tx = max(0, -x0); tx < min(SW, width - x0); ++tx) {
             const int base = pixel_index(x0 + tx, y0 + ty, width) * stride + offset;
             for (int s = 0; s < SPP; ++s, ++n) {
                 const int g = base + s;
                 const float z = depth[g];
-                float d = 2.0f * fabs(c0 / z + c1);
-#if SMOOTH_MOTION
-                const float2 m = vload2(g, motion);
-                d = max(d, sqrt(fma(m.x, m.x, m.y * m.y)));
-#endif
-#if SCALES == 2
-                d = clamp((dscale * d - 1.0f) * 0.2f, 0.0f, 1.0f);  /* the blend, once */
-#else
-                d *= dscale;
-#endif
-                lrec[lid][n] = (float4)(d, vload3(g, color));
-#if UNIFORM_BOX
-                const int k = sweep_block_radius(d);
-                klo = min(klo, k);
-                khi = max(khi, k);
-#endif
+                lrec[lid][n] = (float4)(sweep_block_u(z, motion, g, c0, c1, dscale),
+                                        vload3(g, color));
                 const uint key = sweep_depth_key(z);
                 lo = min(lo, key);
                 top = max(top, as_uint(z) < 0x7F800000u ? key : 0u);
@@ -337,13 +365,6 @@ void sweep_block(__global const float *color, __global const float *depth,
             }
         }
     }
-#if UNIFORM_BOX
-    if (klo == khi && klo >= 0) {  /* one box weighs every sample: its mean, unsorted */
-        sweep_block_uniform(lrec[lid], (__local float *)lsort[lid], x0, y0, width,
-                            height, klo, out);
-        return;
-    }
-#endif
     __local const ulong *sorted = sweep_block_sort(lsort[lid][0], lsort[lid][1], n, lo,
                                                      max(top + 1, lo));
 #if SUPER > 1
