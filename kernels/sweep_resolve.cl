@@ -12,8 +12,11 @@
  *   sweep_resolve_tile: a TILE x TILE work-group loads the sorted keys of the tile and its
  *     apron into local memory, sorts them once (bitonic, by depth then position in the
  *     tile), and every pixel walks that list, skipping samples outside its window.
+ * Both take a shortcut where every sample of a window weighs in one box alone (sweep_radius):
+ * that box's mean, unsorted (UNIFORM_BOX, default 1; 0 sweeps every window).
  * Compile-time: SPP, SCALES (2 or 4), EXPONENT and EXPONENT_ON (the paper's 1.3 variant;
- *   defaults and R in sweep.h), SORT_N (power of two >= (TILE + 2R)^2 * SPP, tile kernel only).
+ *   defaults and R in sweep.h), UNIFORM_BOX, SORT_N (power of two >= (TILE + 2R)^2 * SPP,
+ *   tile kernel only).
  * Tunables: TILE (tile kernel: local size TILE x TILE; the pixel kernel's local size is a
  *   launch parameter only),
  *   TILE_MERGE (tile kernel): 0 = bitonic sort by all work-items (GPUs), 1 = one work-item
@@ -90,6 +93,43 @@ inline void sweep_step(sweep_state *st, float x, float y, float d, float3 c)
     st->sum += w * c;
 }
 
+#ifndef UNIFORM_BOX
+#define UNIFORM_BOX 1  /* 0: every window is swept (those whose samples weigh in one box too) */
+#endif
+
+/* The box radius k that alone weighs a sample of diameter d in sweep_step (its blend 1: the
+ * 5x5 box, 0: the 1x1 box, with two scales; D's band with four), -1 where the weight mixes
+ * boxes. A window whose every sample has the same k >= 0 keeps the other boxes' coverages
+ * at zero, so each sample weighs that box's constant in it, in any depth order: the sweep's
+ * image is the box's mean (sweep_box_mean), without the sort or the sweep. */
+inline int sweep_radius(const float d)
+{
+#if SCALES == 2
+    const float blend = clamp((d - 1.0f) / 5.0f, 0.0f, 1.0f);  /* as sweep_step */
+    return blend >= 1.0f ? 2 : (blend == 0.0f ? 0 : -1);
+#else
+    return d > 7.0f ? 3 : (d > 5.0f ? 2 : (d > 3.0f ? 1 : 0));
+#endif
+}
+
+/* The mean colour of the samples of the (2k+1)^2 pixels around (px, py) in the image, each
+ * scaled as it is summed (no partial sum exceeds the largest colour). */
+inline float3 sweep_box_mean(__global const float4 *colors, const int px, const int py,
+                             const int width, const int height, const int k)
+{
+    const int xa = max(0, px - k), xb = min(width - 1, px + k);
+    const int ya = max(0, py - k), yb = min(height - 1, py + k);
+    const float inv = 1.0f / (float)((xb - xa + 1) * (yb - ya + 1) * SPP);
+    float3 sum = (float3)(0.0f);
+    for (int y = ya; y <= yb; ++y)
+        for (int x = xa; x <= xb; ++x) {
+            const int b = pixel_index(x, y, width) * SPP;
+            for (int i = 0; i < SPP; ++i)
+                sum = fma(colors[b + i].xyz, (float3)(inv), sum);
+        }
+    return sum;
+}
+
 inline void sweep_init(sweep_state *st)
 {
     st->cov_1 = st->cov_3 = st->cov_5 = st->cov_7 = st->cov = 0.0f;
@@ -112,6 +152,20 @@ void sweep_resolve_pixel(__global const float4 *keys, __global const float4 *col
         cur[j] = inside ? 0 : SPP;
         head[j] = inside ? keys[base[j]].z : INFINITY;
     }
+#if UNIFORM_BOX
+    {   /* one box for every sample of the window: its mean */
+        const int k0 = sweep_radius(keys[base[R * WIN + R]].w);  /* (px, py): in the image */
+        bool one = k0 >= 0;
+        for (int j = 0; one && j < WIN * WIN; ++j)
+            for (int i = cur[j]; i < SPP; ++i)
+                one &= sweep_radius(keys[base[j] + i].w) == k0;
+        if (one) {
+            vstore3(sweep_box_mean(colors, px, py, width, height, k0),
+                    pixel_index(px, py, width), out);
+            return;
+        }
+    }
+#endif
     const float cx = px + 0.5f, cy = py + 0.5f;
     sweep_state st;
     sweep_init(&st);
@@ -138,29 +192,58 @@ void sweep_resolve_tile(__global const float4 *keys, __global const float4 *colo
     __local float4 lkeys[TILE_SAMPLES];
     __local float lz[SORT_N];
     __local ushort lidx[SORT_N];
+#if UNIFORM_BOX
+    __local int lk[2];  /* the smallest and largest sweep_radius of the window's samples */
+#endif
     const int lx = get_local_id(0), ly = get_local_id(1);
     const int lid = ly * TILE + lx;
     const int x0 = get_group_id(0) * TILE - R, y0 = get_group_id(1) * TILE - R;
+#if UNIFORM_BOX
+    if (lid == 0) {
+        lk[0] = 4;
+        lk[1] = -1;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    int klo = 4, khi = -1;
+#endif
     for (int i = lid; i < SORT_N; i += TILE * TILE) {
         float z = INFINITY;
         if (i < TILE_SAMPLES) {
             const int t = i / SPP, s = i % SPP;
             const int qx = x0 + t % TW, qy = y0 + t / TW;
             float4 k = (float4)(0.0f, 0.0f, INFINITY, 0.0f);
-            if (qx >= 0 && qx < width && qy >= 0 && qy < height)
+            if (qx >= 0 && qx < width && qy >= 0 && qy < height) {
                 k = keys[pixel_index(qx, qy, width) * SPP + s];
+#if UNIFORM_BOX
+                const int r = sweep_radius(k.w);
+                klo = min(klo, r);
+                khi = max(khi, r);
+#endif
+            }
             lkeys[i] = k;
             z = k.z;
         }
         lz[i] = z;
         lidx[i] = (ushort)i;
     }
+#if UNIFORM_BOX
+    atomic_min(&lk[0], klo);
+    atomic_max(&lk[1], khi);
+#endif
     barrier(CLK_LOCAL_MEM_FENCE);
+    /* one box weighs every sample of the tile's window: no sort (its loops run no step and
+     * every work-item still meets the same barriers; with a return here, before them, PoCL
+     * 3.1 wrote NaNs and corrupted its heap at tile 8), then each pixel's box mean */
+#if UNIFORM_BOX
+    const int kone = lk[0] == lk[1] && lk[0] >= 0 ? lk[0] : -1;
+#else
+    const int kone = -1;
+#endif
 #if TILE_MERGE
     /* Each pixel's run of SPP keys is already sorted (sweep_prepare); merge the RUNS runs
      * with a winner tree. Key: depth bits (depth > 0, so its IEEE bits order like the
      * value) above the run index, so ties go to the lower tile index like the sort. */
-    if (lid == 0) {
+    if (lid == 0 && kone < 0) {
         ulong tree[2 * LEAVES];
         int pos[RUNS];
         for (int r = 0; r < LEAVES; ++r) {
@@ -187,7 +270,7 @@ void sweep_resolve_tile(__global const float4 *keys, __global const float4 *colo
 #else
     /* bitonic sort of (depth, index): index ties keep tile order, and padding (index >=
      * TILE_SAMPLES, depth inf) sorts after every real entry */
-    for (int size = 2; size <= SORT_N; size <<= 1) {
+    for (int size = 2; size <= (kone < 0 ? SORT_N : 0); size <<= 1) {
         for (int stride = size >> 1; stride > 0; stride >>= 1) {
             for (int i = lid; i < SORT_N / 2; i += TILE * TILE) {
                 const int a = 2 * i - (i & (stride - 1));
@@ -208,6 +291,11 @@ void sweep_resolve_tile(__global const float4 *keys, __global const float4 *colo
     const int px = x0 + R + lx, py = y0 + R + ly;
     if (px >= width || py >= height)
         return;
+    if (kone >= 0) {
+        vstore3(sweep_box_mean(colors, px, py, width, height, kone), pixel_index(px, py, width),
+                out);
+        return;
+    }
     const float cx = px + 0.5f, cy = py + 0.5f;
     sweep_state st;
     sweep_init(&st);

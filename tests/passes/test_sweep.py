@@ -197,6 +197,50 @@ def test_block_kernel_windows_of_one_box(device, rng, supers, scales, exponent):
     assert_close(images[0], images[1], rtol=2e-5, atol=2e-6, what="one-box vs sorted sweep")
 
 
+@pytest.mark.parametrize("plan", [dict(sort="tile", tile=4, tile_merge="serial"),
+                                  dict(sort="tile", tile=8, tile_merge="bitonic"),
+                                  dict(sort="pixel")], ids=["tile4serial", "tile8bitonic", "pixel"])
+@pytest.mark.parametrize("scales", [2, 4])
+def test_resolve_windows_of_one_box(device, rng, plan, scales):
+    """sweep_resolve's tile and pixel plans take the one-box shortcut too (a tile's window,
+    or a pixel's, whose every sample weighs in one box: that box's mean): the reference's
+    image, and the full sweep's (UNIFORM_BOX=0) to float rounding."""
+    import pyopencl as cl
+
+    from clrecon.methods.sweep.prepare import SweepPrepare
+    from clrecon.methods.sweep.resolve import SweepResolve, tile_local_bytes
+
+    if plan["sort"] == "tile" and (
+            tile_local_bytes(plan["tile"], scales, 4) > device.device.local_mem_size
+            or plan["tile"] ** 2 > device.device.max_work_group_size):
+        pytest.skip("the device does not hold the tile")
+    buf, _ = _banded_frame(rng, scales)
+    want = ref.reconstruct(buf, scales=scales)
+    got = clrecon.reconstruct(buf, "sweep", device, scales=scales, safeguard=False, **plan)
+    assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"{plan} vs reference")
+    # the shortcut off: the same prepared keys resolved both ways
+    from clrecon.core.pipeline import DeviceSamples
+
+    h, w = buf.height, buf.width
+    samples = DeviceSamples.upload(device.queue, buf)
+    prep = SweepPrepare(device.context, 4, True)
+    mf = cl.mem_flags.READ_WRITE
+    keys, colors = (cl.Buffer(device.context, mf, h * w * 4 * 16) for _ in range(2))
+    prep(device.queue, samples, 1.0, keys, colors).wait()
+    knobs = {k: v for k, v in plan.items() if k != "sort"}
+    images = []
+    for uniform in (True, False):
+        res = SweepResolve(device.context, 4, scales, sort=plan["sort"], uniform_box=uniform,
+                           **knobs)
+        out = cl.Buffer(device.context, mf, h * w * 12)
+        res(device.queue, keys, colors, w, h, out).wait()
+        img = np.empty((h, w, 3), np.float32)
+        cl.enqueue_copy(device.queue, img, out).wait()
+        images.append(img)
+    assert_close(images[0], want, rtol=2e-4, atol=2e-5, what=f"{plan} resolve vs reference")
+    assert_close(images[0], images[1], rtol=2e-5, atol=2e-6, what=f"{plan}: one-box vs sweep")
+
+
 def test_block_kernel_refuses_bad_supers(device):
     from clrecon.methods.sweep.block import SweepBlock
 

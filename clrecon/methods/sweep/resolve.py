@@ -27,9 +27,10 @@ def tile_sort_size(tile: int, scales: int, spp: int) -> int:
 
 def tile_local_bytes(tile: int, scales: int, spp: int) -> int:
     """Local memory of the tile kernel: a float4 key per window sample, a float depth and
-    a ushort index per sort entry."""
+    a ushort index per sort entry, and two ints (the window's smallest and largest box
+    radius, for the one-box shortcut)."""
     r = 2 if scales == 2 else 3
-    return (tile + 2 * r) ** 2 * spp * 16 + tile_sort_size(tile, scales, spp) * 6
+    return (tile + 2 * r) ** 2 * spp * 16 + tile_sort_size(tile, scales, spp) * 6 + 8
 
 
 def tile_samples_fit(tile: int, scales: int, spp: int) -> bool:
@@ -61,7 +62,9 @@ class SweepResolve:
 
     def __init__(self, context: cl.Context, spp: int, scales: int = 2, exponent: float = 1.0,
                  sort: str = "tile", tile: int = 4, tile_merge: str = "auto",
-                 local: LocalSize | None = None):
+                 local: LocalSize | None = None, uniform_box: bool = True):
+        """``uniform_box=False`` sweeps every window, also those whose every sample weighs
+        in one box alone (whose image is that box's mean, unsorted by default)."""
         if scales not in (2, 4):
             raise ValueError(f"scales: must be 2 or 4, got {scales}")
         if sort not in SORTS:
@@ -70,7 +73,7 @@ class SweepResolve:
             raise ValueError(f"exponent: must be positive, got {exponent}")
         self.sort, self.tile, self.tile_merge = sort, int(tile), None
         defines = {"SPP": spp, "SCALES": scales, "EXPONENT": float(exponent),
-                   "EXPONENT_ON": exponent != 1.0}
+                   "EXPONENT_ON": exponent != 1.0, "UNIFORM_BOX": bool(uniform_box)}
         if sort == "tile":
             dev = context.devices[0]
             need = tile_local_bytes(self.tile, scales, spp)
