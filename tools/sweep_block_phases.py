@@ -10,10 +10,14 @@ wall ms of the launch and its wait; the first two rounds are warm-up), for:
 * ``current``: ``kernels/sweep_block.cl`` as it is;
 * with ``--against REV``: the file at that git revision (``git show``), and whether the two
   images are bit-identical;
-* phase variants of the current source, each one cut less: ``no sweep math`` (each list
-  entry's record is still read), ``no list walk`` (the blocks' lists are built but not
-  read), ``no sort`` (the window's samples stay in window order). The difference between
-  two neighbours is that phase's share. A variant's image is meaningless; only its time.
+* ``no one-box shortcut``: the current source with ``UNIFORM_BOX=0``: every window is
+  sorted and swept, also those whose every sample weighs in one box (whose image the
+  kernel otherwise takes as that box's mean); the same image to float rounding;
+* phase variants of that, each one cut less: ``no sweep math`` (each list entry's record
+  is still read), ``no list walk`` (the blocks' lists are built but not read), ``no
+  sort`` (the window's samples stay in window order). The difference between two
+  neighbours is that phase's share of the full sweep. A variant's image is meaningless;
+  only its time.
 
 The variants edit the source by exact text; if the kernel changed so that a cut no longer
 applies, that variant is left out with a note instead of timing the wrong thing.
@@ -91,18 +95,20 @@ def main(argv=None):
     out = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
 
     current = kernel_source("sweep_block")
-    sources = [("current", current)]
+    full = {**block.defines, "UNIFORM_BOX": False}  # every window sorted and swept
+    sources = [("current", current, block.defines)]
     if args.against:
         old = subprocess.run(["git", "show", f"{args.against}:kernels/sweep_block.cl"],
                              cwd=ROOT, check=True, capture_output=True, text=True).stdout
-        sources.append((args.against, old))
+        sources.append((args.against, old, block.defines))
+    sources.append(("no one-box shortcut", current, full))
     skipped = [name for name, s in variants(current) if s is None]
-    sources += [(name, s) for name, s in variants(current) if s is not None]
+    sources += [(name, s, full) for name, s in variants(current) if s is not None]
 
     runs, images = [], {}
-    for name, src in sources:
+    for name, src, defines in sources:
         b = copy.copy(block)
-        b.kernel = build_source(dev.context, src, block.defines, f"sweep_block ({name})"
+        b.kernel = build_source(dev.context, src, defines, f"sweep_block ({name})"
                                 ).sweep_block
 
         def call(b=b, name=name):
@@ -121,7 +127,7 @@ def main(argv=None):
              f"Device: {dev.device.name}; host CPU: {host_cpu()}; {args.repeats} paired "
              f"rounds, median of the last {args.repeats - 2} (ms, launch + wait).", "",
              "| kernel | ms | x current |", "|---|---|---|"]
-    for (name, _), m in zip(sources, med):
+    for (name, *_), m in zip(sources, med):
         lines.append(f"| {name} | {m:.1f} | {m / med[0]:.3f} |")
     if args.against:
         same = np.array_equal(images["current"], images[args.against], equal_nan=True)

@@ -33,6 +33,7 @@ def test_tiny_frame_end_to_end(tmp_path, device):
     sbp.main(["--scene", "fence", "--size", "40x24", "--spp", "4", "--repeats", "3",
               "--device", str(device.info.index), "-o", str(page)])
     text = page.read_text()
-    for row in ("| current |", "| no sweep math |", "| no list walk |", "| no sort |"):
+    for row in ("| current |", "| no one-box shortcut |", "| no sweep math |",
+                "| no list walk |", "| no sort |"):
         assert row in text
     assert "Left out" not in text
