@@ -124,13 +124,13 @@ def test_block_kernel_one_or_four_blocks_per_work_item(device, rng, supers, shap
     assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"block supers={supers} {knobs}")
 
 
-def _banded_frame(rng, scales):
+def _banded_frame(rng, scales, spp=4):
     """A frame of five 24-row bands: every sample far out of focus (blend 1 / the 7x7 box),
     in focus and still (blend 0 / 1x1), D in 3.2-3.9 (mixed blends / the 3x3 box), D in
     5.5-6.7 (mixed / 5x5), and the random frame; so sweep_block meets windows whose every
     sample weighs in one box, of each radius, and mixed ones."""
     band = 24
-    buf = frame(rng, 5 * band, 20, 4)
+    buf = frame(rng, 5 * band, 20, spp)
     ranges = [(20.0, 40.0), (3.95, 4.05), (5.0, 5.3), (6.1, 6.9)]
     for b, (lo, hi) in enumerate(ranges):
         rows = slice(b * band, (b + 1) * band)
@@ -239,6 +239,29 @@ def test_resolve_windows_of_one_box(device, rng, plan, scales):
         images.append(img)
     assert_close(images[0], want, rtol=2e-4, atol=2e-5, what=f"{plan} resolve vs reference")
     assert_close(images[0], images[1], rtol=2e-5, atol=2e-6, what=f"{plan}: one-box vs sweep")
+
+
+def test_one_box_windows_in_the_safeguards_halves(device, rng, monkeypatch):
+    """The safeguard runs sweep_block on each half read in place (stride = the frame's spp,
+    offset = the half's first sample): the one-box windows there give the full sweep's
+    image too, through the whole default pipeline."""
+    from clrecon.api import clear_sessions
+    from clrecon.methods.sweep.block import SweepBlock
+
+    if not (device.device.type & 2):  # CL_DEVICE_TYPE_CPU: the block plan is the default
+        pytest.skip("the block plan is the default on CPUs only")
+    buf, _ = _banded_frame(rng, 2, spp=8)
+    clear_sessions()
+    res = clrecon.run(buf, "sweep", device)
+    assert res.method["sort"] == "block" and res.method["safeguard"] is True
+    assert "sweep_block (halves)" in res.pass_ms
+    full = SweepBlock.__init__
+    monkeypatch.setattr(SweepBlock, "__init__",
+                        lambda self, *a, **k: full(self, *a, **{**k, "uniform_box": False}))
+    clear_sessions()
+    off = clrecon.run(buf, "sweep", device)
+    clear_sessions()
+    assert_close(res.image, off.image, rtol=2e-5, atol=2e-6, what="halves: one-box vs sweep")
 
 
 def test_block_kernel_refuses_bad_supers(device):
