@@ -127,12 +127,13 @@ def draw_local(context: cl.Context) -> tuple[int, int, int] | None:
     """The draw's work-group size: one owner tile a work-group on a CPU (None elsewhere: the
     implementation's choice).
 
-    A tile's cost is its bins' PSFs, and the bins crowd where the frame's layers are; PoCL's
-    own work-groups for a NULL local size held rows of tiles, so one core drew a crowded row
-    while the other idled (the halves' draw ran 1.24x faster on 2 threads than on 1). One
-    tile a group lets its threads take the next tile as they finish: deep 1280x720 8 spp,
-    the halves' draw 369 -> 291 ms (median of 5 paired runs, per-run ratios 0.69-0.88),
-    bit-identical images (each tile adds in its own fixed order either way)."""
+    A tile's cost is its bins' PSFs, and the bins crowd where the frame's layers are; with a
+    NULL local size the halves' draw ran only 1.24x faster on 2 threads than on 1 (likely:
+    PoCL's own work-groups held several tiles, one core drawing a crowded group while the
+    other idled). One tile a group lets its threads take the next tile as they finish:
+    deep 1280x720 8 spp, the halves' draw 369 -> 291 ms (median of 5 paired runs, per-run
+    ratios 0.69-0.88), bit-identical images (each tile adds in its own fixed order either
+    way)."""
     return (1, 1, 1) if cpu_context(context) else None
 
 
