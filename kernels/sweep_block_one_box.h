@@ -57,12 +57,14 @@ inline int sweep_block_radius(const float u)
 #define intSB int8
 #define convert_floatSB convert_float8
 #define vloadSB vload8
+#define vstoreSB vstore8
 #define SB_LANES (int8)(0, 1, 2, 3, 4, 5, 6, 7)
 #else
 #define floatSB float4
 #define intSB int4
 #define convert_floatSB convert_float4
 #define vloadSB vload4
+#define vstoreSB vstore4
 #define SB_LANES (int4)(0, 1, 2, 3)
 #endif
 inline void sweep_block_uniform(__global const float *color, const int stride,
@@ -89,7 +91,9 @@ inline void sweep_block_uniform(__global const float *color, const int stride,
     const intSB o = SB_LANES;
     const intSB nx = min(tx1 - 1, R + o + k) - max(tx0, R + o - k) + 1;
     const intSB ny = min(ty1 - 1, R + o + k) - max(ty0, R + o - k) + 1;
-    const floatSB ix = 1.0f / convert_floatSB(nx), iy = 1.0f / convert_floatSB(ny);
+    const floatSB ix = 1.0f / convert_floatSB(nx);
+    float fy[SB];
+    vstoreSB(1.0f / convert_floatSB(ny), 0, fy);
     /* rows: the horizontal box sum of every window row an output's box reaches, per plane */
     floatSB hr[SW], hg[SW], hb[SW];
     for (int ty = R - k; ty < R + SB + k; ++ty) {
@@ -114,20 +118,12 @@ inline void sweep_block_uniform(__global const float *color, const int stride,
             g += hg[ty];
             b += hb[ty];
         }
-        float vr[SB], vg[SB], vb[SB], f[SB];
-#if SB == 8
-        vstore8(r, 0, vr);
-        vstore8(g, 0, vg);
-        vstore8(b, 0, vb);
-        vstore8(iy, 0, f);
-#else
-        vstore4(r, 0, vr);
-        vstore4(g, 0, vg);
-        vstore4(b, 0, vb);
-        vstore4(iy, 0, f);
-#endif
+        float vr[SB], vg[SB], vb[SB];
+        vstoreSB(r, 0, vr);
+        vstoreSB(g, 0, vg);
+        vstoreSB(b, 0, vb);
         for (int ox = 0; ox < SB && x0 + R + ox < width; ++ox)
-            vstore3((float3)(vr[ox], vg[ox], vb[ox]) * f[oy],
+            vstore3((float3)(vr[ox], vg[ox], vb[ox]) * fy[oy],
                     pixel_index(x0 + R + ox, py, width), out);
     }
 }

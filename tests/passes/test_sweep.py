@@ -124,7 +124,7 @@ def test_block_kernel_one_or_four_blocks_per_work_item(device, rng, supers, shap
     assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"block supers={supers} {knobs}")
 
 
-def _banded_frame(rng, scales, spp=4):
+def _banded_frame(rng, spp=4):
     """A frame of five 24-row bands: every sample far out of focus (blend 1 / the 7x7 box),
     in focus and still (blend 0 / 1x1), D in 3.2-3.9 (mixed blends / the 3x3 box), D in
     5.5-6.7 (mixed / 5x5), and the random frame; so sweep_block meets windows whose every
@@ -170,7 +170,7 @@ def test_block_kernel_windows_of_one_box(device, rng, supers, scales, exponent):
 
     if block_local_bytes(scales, 4, 1, supers) > device.device.local_mem_size:
         pytest.skip("the device's local memory does not hold the window")
-    buf, d = _banded_frame(rng, scales)
+    buf, d = _banded_frame(rng)
     h, w = buf.height, buf.width
     # the work-items' windows this frame gives: one box alone in some (of each radius the
     # scales have), mixed in others
@@ -214,7 +214,7 @@ def test_resolve_windows_of_one_box(device, rng, plan, scales):
             tile_local_bytes(plan["tile"], scales, 4) > device.device.local_mem_size
             or plan["tile"] ** 2 > device.device.max_work_group_size):
         pytest.skip("the device does not hold the tile")
-    buf, _ = _banded_frame(rng, scales)
+    buf, _ = _banded_frame(rng)
     want = ref.reconstruct(buf, scales=scales)
     got = clrecon.reconstruct(buf, "sweep", device, scales=scales, safeguard=False, **plan)
     assert_close(got, want, rtol=2e-4, atol=2e-5, what=f"{plan} vs reference")
@@ -245,12 +245,14 @@ def test_one_box_windows_in_the_safeguards_halves(device, rng, monkeypatch):
     """The safeguard runs sweep_block on each half read in place (stride = the frame's spp,
     offset = the half's first sample): the one-box windows there give the full sweep's
     image too, through the whole default pipeline."""
+    import pyopencl as cl
+
     from clrecon.api import clear_sessions
     from clrecon.methods.sweep.block import SweepBlock
 
-    if not (device.device.type & 2):  # CL_DEVICE_TYPE_CPU: the block plan is the default
+    if not device.device.type & cl.device_type.CPU:  # the block plan is the CPU default
         pytest.skip("the block plan is the default on CPUs only")
-    buf, _ = _banded_frame(rng, 2, spp=8)
+    buf, _ = _banded_frame(rng, spp=8)
     clear_sessions()
     res = clrecon.run(buf, "sweep", device)
     assert res.method["sort"] == "block" and res.method["safeguard"] is True
