@@ -43,7 +43,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     ``grow=True`` re-plans (kernels come from the build cache) when a frame falls outside the
     bounds instead of refusing it. Unknown knobs raise ``TypeError``.
 
-    ``safeguard`` (default: on for every method but ``box`` at 2 spp or more) blends the
+    ``safeguard`` (default: on for every method but plain ``box`` at 2 spp or more) blends the
     method's image toward box wherever its estimated bias dominates
     (:mod:`clrecon.methods.safeguard`);
     ``safeguard=False`` is the papers' method alone. ``estimate_error=True`` also computes the
@@ -57,7 +57,9 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     the method's is the better (its blurred regions, where its image is nearly noise-free).
     ``nlm=R`` (1..10; 0: off) then averages each half's image further over (2R+1)^2 pixels
     with dual-buffer non-local means, each half weighted by the other
-    (:mod:`clrecon.methods.nlm`); same needs as ``guided``. ``nlm_scales=S`` (1..6) also
+    (:mod:`clrecon.methods.nlm`); it needs 2 spp or more. With ``box`` it filters box's own
+    halves (the samples' means: Rousselle et al. 2012's dual-buffer filter, consistent
+    through the safeguard's blend toward box). ``nlm_scales=S`` (1..6) also
     filters each half's low band at S - 1 coarser scales (each half the last's resolution).
     """
     safeguard = check_bool("safeguard", safeguard, none_ok=True)
@@ -71,13 +73,12 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     guide_blend = check_bool("guide_blend", guide_blend)
     inner = make_method(method, context, info, **knobs)
     if safeguard is None:
-        safeguard = method != "box" and info.spp >= 2
+        safeguard = (method != "box" or bool(nlm)) and info.spp >= 2
     for name, on, other in (("guided", guided, "box has no image of its own to guide the "
                              "regression; pick a method (sweep, layered or splat)"),
-                            ("nlm", nlm, "box has no image of its own to filter; pick a "
-                             "method (sweep, layered or splat)"),
-                            ("safeguard", safeguard, "box is the unbiased estimate the "
-                             "safeguard blends toward; it has nothing to safeguard")):
+                            ("safeguard", safeguard and not nlm, "box is the unbiased "
+                             "estimate the safeguard blends toward; it has nothing to "
+                             "safeguard (but its halves filtered by nlm=R)")):
         if on and method == "box":
             raise ValueError(f"{name}: {other}")
     # each needs two independent halves of every pixel's samples

@@ -4,6 +4,8 @@
  *
  *   safeguard_split  copy one sample field into its two halves (samples 0..ha-1, ha..S-1 of
  *                    each pixel): two independent estimates of everything
+ *   safeguard_box_halves  the samples' means of each half (ma, mb: box's own halves'
+ *                    images, which non-local means filters when box is the method)
  *   safeguard_stats  per pixel: the box image and, in linear radiance, mean over RGB,
  *                    d2 = |m - box|^2, vb = k |boxA - boxB|^2, vm = k |mA - mB|^2 with
  *                    k = ha hb / S^2 (the variance of the full-frame estimate from its halves);
@@ -96,6 +98,23 @@ __kernel void safeguard_split(__global const float *src, __global float *dst_a,
         a[i] = s[i];
     for (int i = 0; i < hb * width; ++i)
         b[i] = s[ha * width + i];
+}
+
+/* ma, mb (P, 3): the means of samples 0..ha-1 and ha..S-1 of each pixel of color (P, S, 3) */
+__kernel void safeguard_box_halves(__global const float *color, __global float *ma,
+                                   __global float *mb, int pixels, int spp, int ha)
+{
+    const int p = get_global_id(0);
+    if (p >= pixels)
+        return;
+    const __global float *c = color + (size_t)p * spp * 3;
+    float3 sa = (float3)(0.0f), sb = (float3)(0.0f);
+    for (int i = 0; i < ha; ++i)
+        sa += vload3(i, c);
+    for (int i = ha; i < spp; ++i)
+        sb += vload3(i, c);
+    vstore3(sa / (float)ha, p, ma);
+    vstore3(sb / (float)(spp - ha), p, mb);
 }
 
 inline float lum2(float3 d) { return (d.x * d.x + d.y * d.y + d.z * d.z) * (1.0f / 3.0f); }

@@ -47,8 +47,9 @@ OIDN_QUALITIES = ("fast", "high")
 def trade_variants(methods: Sequence[str] | None = None,
                    settings: Sequence[str] | None = None) -> list[tuple[str, str, dict]]:
     """The (label, method, knobs) settings of :data:`TRADES` for ``methods`` (default: every
-    registered method), only those labelled in ``settings`` when it is given. ``box`` is
-    always included: every ratio is taken against it."""
+    registered method), only those labelled in ``settings`` when it is given. The plain box
+    filter is always included: every ratio is taken against it (box's other settings, its
+    halves filtered, only where ``methods`` names box)."""
     methods = [m for m in TRADES if m in METHODS] if methods is None else list(methods)
     for m in methods:
         if m not in METHODS:
@@ -56,9 +57,9 @@ def trade_variants(methods: Sequence[str] | None = None,
         if m not in TRADES:
             raise ValueError(f"methods: {m!r} has no trade settings in "
                              f"clrecon.bench.trade_settings")
-    if "box" not in methods:
-        methods = ["box", *methods]
     every = [(lab, m, k) for m in methods for lab, k in TRADES[m]]
+    if "box" not in methods:
+        every = [("box", "box", {}), *every]
     if settings is not None:
         known = {lab for lab, _, _ in every}
         unknown = [s for s in settings if s not in known]

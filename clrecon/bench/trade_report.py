@@ -19,7 +19,8 @@ def verdicts(rows: list[dict]) -> list[dict]:
     keys = list(dict.fromkeys((r["scene"], r["spp"]) for r in rows))
     for scene, spp in keys:
         group = [r for r in rows if (r["scene"], r["spp"]) == (scene, spp)]
-        ours = [r for r in group if r["method"] not in ("oidn", "box")]
+        # clrecon's settings: all but OIDN and the plain box filter they are measured against
+        ours = [r for r in group if r["method"] != "oidn" and r["variant"] != "box"]
         for o in (r for r in group if r["method"] == "oidn"):
             wins = [r["variant"] for r in ours if r["ms"] < o["ms"] and r["psnr"] > o["psnr"]]
             best = max(ours, key=lambda r: r["psnr"], default=None)

@@ -9,9 +9,14 @@ from typing import Any
 #: is the paper's method alone; ``+safeguard`` the method's default
 #: (:mod:`clrecon.methods.safeguard`); ``guided`` the method's halves refined by their box
 #: images (:mod:`clrecon.methods.guided`), ``nlm`` the halves further averaged by dual-buffer
-#: non-local means (:mod:`clrecon.methods.nlm`)
+#: non-local means (:mod:`clrecon.methods.nlm`; with box: box's own halves)
 TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
-    "box": (("box", {}),),
+    "box": (
+        ("box", {}),
+        # box's own halves through dual-buffer non-local means, blended toward box
+        ("box nlm3 +safeguard", {"nlm": 3}),
+        ("box nlm3x4 +safeguard", {"nlm": 3, "nlm_scales": 4}),
+    ),
     "sweep": (
         ("sweep dof-layers", {"dof_layers": True, "safeguard": False}),
         ("sweep 2-scale", {"scales": 2, "safeguard": False}),

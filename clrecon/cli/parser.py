@@ -122,7 +122,7 @@ def _demo(sub) -> None:
                     help="comma-separated methods to run (oidn: box + Open Image Denoise; "
                     "METHOD+guided: the method with the guided refinement, guided=2; "
                     "METHOD+guided+nlm, METHOD+nlm: with non-local means on the halves, "
-                    "nlm=3 at nlm_scales=4)")
+                    "nlm=3 at nlm_scales=4; box+nlm: on box's own halves)")
     _output_folder(sp, "out", "folder of the images")
     device_arg(sp)
     sp.set_defaults(fn=cmd_demo)

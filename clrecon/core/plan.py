@@ -131,6 +131,17 @@ def shape_bounds(info: FrameInfo, spp_why: str | None = None) -> tuple[Bound, ..
     return out
 
 
+def unique_bounds(bounds) -> tuple[Bound, ...]:
+    """``bounds`` in order, each (name, op, limit) once."""
+    seen, out = set(), []
+    for b in bounds:
+        key = (b.name, b.op, b.limit)
+        if key not in seen:
+            seen.add(key)
+            out.append(b)
+    return tuple(out)
+
+
 def coc_bound(limit: float, why: str, op: str = "<=") -> Bound:
     return Bound("max_abs_coc", op, float(limit), why, needs=("depth",))
 

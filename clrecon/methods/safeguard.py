@@ -73,7 +73,7 @@ import numpy as np
 
 from clrecon.core.errors import DeviceMemoryError
 from clrecon.core.pipeline import DeviceSamples, Pipeline, make_method
-from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds
+from clrecon.core.plan import BOX_PLAN, Plan, Step, shape_bounds, unique_bounds
 from clrecon.core.samples import FIELDS
 from clrecon.methods import nlm as nl
 from clrecon.methods.guided import GuidedPasses, check_radius
@@ -135,7 +135,10 @@ class Safeguarded(Pipeline):
         # a plan that is the per-pixel average (a frame without blur) is box: its error is
         # box's variance, and there is nothing to blend
         is_box = method == "box" or self.full.plan.name == BOX_PLAN
-        self.mode = MODE_BOX if is_box else (MODE_BLEND if blend else MODE_METHOD)
+        # nlm on box's own halves (box, or a method planned as box): blended like a method's
+        self.box_halves = is_box and nl.check_radius(nlm) > 0
+        self.mode = MODE_BOX if is_box and not self.box_halves else (
+            MODE_BLEND if blend else MODE_METHOD)
         # a method whose weights do not depend on the sample count (its class says so) gets
         # the blend's method image from its halves, (ha mA + hb mB) / S, instead of a third
         # run on the frame: the same bias and variance, a third less work. The error alone
@@ -145,13 +148,15 @@ class Safeguarded(Pipeline):
         self.guided = 0 if is_box else check_radius(guided)
         # nlm: the halves' images (the method's or the refined ones) averaged further with
         # dual-buffer non-local means (clrecon.methods.nlm)
-        self.nlm = 0 if is_box else nl.check_radius(nlm)
+        self.nlm = nl.check_radius(nlm) if self.box_halves or not is_box else 0
+        # box's image is its halves' mean by definition
+        mean_of_halves = self.full.halves_mean or self.box_halves
         for knob, on in (("guided", self.guided), ("nlm", self.nlm)):
-            if on and not self.full.halves_mean:
+            if on and not mean_of_halves:
                 raise ValueError(f"{knob}: {method}'s image is not the mean of its halves' "
                                  f"images, so the filtered halves cannot stand for it")
         self.halves_mean = (self.mode == MODE_BLEND or bool(self.guided or self.nlm)) and \
-            self.full.halves_mean
+            mean_of_halves
         ha, hb = halves(info.spp)
         self.half_a = self.half_b = None
         if not is_box:
@@ -182,6 +187,9 @@ class Safeguarded(Pipeline):
         self.joint_out = tuple(o for n in self.joint for o in have[n].outputs
                                if o in self.full.plan.temporaries and o in rest_in)
         steps = []
+        if self.box_halves:
+            temps |= {"ma": npx * 12, "mb": npx * 12}
+            steps.append(self.passes.box_halves_step())
         if not is_box:
             temps |= {"ma": npx * 12, "mb": npx * 12}
             if not self.views:
@@ -240,7 +248,7 @@ class Safeguarded(Pipeline):
         suffix = ("guided+" if self.guided else "") + ("nlm+" if self.nlm else "") + (
             "safeguard" if self.mode == MODE_BLEND else "error")
         plan = Plan(method, f"{self.full.plan.name}+{suffix}", inner_fields, tuple(steps),
-                    temps, _unique(bounds))
+                    temps, unique_bounds(bounds))
         try:
             self.set_plan(plan)
         except DeviceMemoryError:
@@ -382,19 +390,11 @@ class Safeguarded(Pipeline):
             d["safeguard_convergence"] = "measured (the halves' variances scaled by it)"
         if models_covariance(self.info.spp):
             d["safeguard_covariance"] = "modelled as the method's variance (e = d2 + vm - vb)"
+        if self.box_halves:
+            d["nlm_of"] = "box's own halves (the samples' means)"
         if self.halves_mean:
             d["safeguard_image"] = "the mean of the halves' images"
         if self.joint:
             d["safeguard_joint"] = list(self.joint)
         d["plan"] = self.plan.name
         return d
-
-
-def _unique(bounds):
-    seen, out = set(), []
-    for b in bounds:
-        key = (b.name, b.op, b.limit)
-        if key not in seen:
-            seen.add(key)
-            out.append(b)
-    return tuple(out)

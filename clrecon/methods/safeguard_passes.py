@@ -16,6 +16,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrecon.core.device import cpu_context, get_kernel
+from clrecon.core.plan import Step
 
 #: the statistics' planes: d2, vb, vm, the exponent and the quarters' dq
 STAT_PLANES = 5
@@ -103,6 +104,7 @@ class SafeguardPasses:
             raise ValueError(f"safeguard: vector width {vw} is not 1, 4, 8 or 16")
         defines = {"SG_VW": self.vw}
         self.split = get_kernel(context, "safeguard", "safeguard_split", defines)
+        self.box_halves = get_kernel(context, "safeguard", "safeguard_box_halves", defines)
         self.stats = get_kernel(context, "safeguard", "safeguard_stats", defines)
         self.rows = get_kernel(context, "safeguard", "safeguard_rows", defines)
         self.blend = get_kernel(context, "safeguard", "safeguard_blend", defines)
@@ -140,6 +142,21 @@ class SafeguardPasses:
                             np.int32(width))
         return cl.enqueue_nd_range_kernel(queue, self.split, (pixels,), None,
                                           wait_for=wait_for)
+
+    def run_box_halves(self, queue, color, ma, mb, pixels, spp, wait_for=None):
+        """ma, mb: the means of each pixel's two halves of its samples (box's halves)."""
+        ha, _ = halves(spp)
+        self.box_halves.set_args(color, ma, mb, np.int32(pixels), np.int32(spp), np.int32(ha))
+        return cl.enqueue_nd_range_kernel(queue, self.box_halves, (pixels,), None,
+                                          wait_for=wait_for)
+
+    def box_halves_step(self) -> Step:
+        """The plan step of :meth:`run_box_halves`: color -> ma, mb."""
+        def run(queue, f, wait_for):
+            b = f.buffers
+            return [("safeguard_box_halves", self.run_box_halves(
+                queue, b["color"], b["ma"], b["mb"], f.width * f.height, f.spp, wait_for))]
+        return Step("box (halves)", ("color",), ("ma", "mb"), run)
 
     def run_stats(self, queue, color, m, ma, mb, box, stats, w, h, spp, has_method,
                   wait_for=None, ua=None, ub=None, quarters: bool = False):

@@ -28,6 +28,9 @@ def test_trade_variants():
     assert [v[0] for v in got[1:]] == [lab for lab, _ in TRADES["sweep"]]
     every = trade_variants()
     assert {m for _, m, _ in every} == {m for m in TRADES if m in METHODS}
+    # box's own settings (its halves filtered) where box is named
+    assert [v[0] for v in every if v[1] == "box"] == [lab for lab, _ in TRADES["box"]]
+    assert "box nlm3 +safeguard" in [v[0] for v in every]
     with pytest.raises(ValueError, match="unknown 'nope'"):
         trade_variants(["nope"])
     picked = trade_variants(["layered", "splat"], settings=["splat guided", "layered guided"])

@@ -34,24 +34,31 @@ def read_buffer(pipe, queue, name: str, shape) -> np.ndarray:
     return a
 
 
-def check_off_and_still(device, rng, buf, method: str, knob: str, on, **base):
+def check_off_and_still(device, rng, buf, method: str, knob: str, on, box_takes=False,
+                        **base):
     """A step's knob off (``knob=0``) is ``method`` with ``base`` as it was, bit for bit;
-    on (``on``), a frame without blur (planned as box) gives box's image."""
+    on (``on``), a frame without blur (planned as box) gives box's image, or with
+    ``box_takes`` (a step box has too) box's image with the step: ``run(method="box")``'s."""
     a = run(buf, method=method, device=device, **base).image
     b = run(buf, method=method, device=device, **base, **{knob: 0}).image
     assert np.array_equal(a, b)
     still = frame(rng, h=12, w=12, s=4, motion=False, aperture=0.0)
     img = run(still, method=method, device=device, **{knob: on}).image
-    assert_close(img, still.color.mean(2), rtol=1e-5, atol=1e-6, what="box plan")
+    want = run(still, method="box", device=device, **{knob: on}).image if box_takes else \
+        still.color.mean(2)
+    assert_close(img, want, rtol=1e-5, atol=1e-6, what="box plan")
+    if box_takes:  # and the step did something to box's image
+        assert np.abs(want - still.color.mean(2)).max() > 1e-4
 
 
 def check_refusals(device, buf, one, method: str, knob: str, on, bad, radius_msg: str,
-                   **one_knobs):
-    """A step's knob: box has no image to give it; each of ``bad`` is refused with
-    ``radius_msg``; ``one`` (a frame of one sample a pixel) is refused: the step needs two
-    halves."""
-    with pytest.raises(ValueError, match=f"{knob}: box has no image"):
-        run(buf, method="box", device=device, **{knob: on})
+                   box_refused=True, **one_knobs):
+    """A step's knob: box has no image to give it (unless not ``box_refused``); each of
+    ``bad`` is refused with ``radius_msg``; ``one`` (a frame of one sample a pixel) is
+    refused: the step needs two halves."""
+    if box_refused:
+        with pytest.raises(ValueError, match=f"{knob}: box has no image"):
+            run(buf, method="box", device=device, **{knob: on})
     for b in bad:
         with pytest.raises(ValueError, match=radius_msg):
             run(buf, method=method, device=device, **{knob: b})
