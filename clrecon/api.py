@@ -23,6 +23,7 @@ from clrecon.core.plan import BOX_PLAN
 from clrecon.core.samples import FIELDS, FrameInfo, SampleBuffer
 from clrecon.methods import box, layered, splat, sweep  # noqa: F401  (they register themselves)
 from clrecon.methods.guided import check_radius
+from clrecon.methods.hybrid import Hybrid
 from clrecon.methods.nlm import check_radius as check_nlm_radius
 from clrecon.methods.nlm import check_scales as check_nlm_scales
 from clrecon.methods.safeguard import Safeguarded
@@ -35,7 +36,7 @@ __all__ = ["METHODS", "PIPELINE_KNOBS", "Reconstruction", "clear_sessions", "mak
 def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool = False,
                   safeguard: bool | None = None, estimate_error: bool = False,
                   guided: int = 0, guide_blend: bool = True, nlm: int = 0,
-                  nlm_scales: int = 1, **knobs) -> Pipeline:
+                  nlm_scales: int = 1, hybrid: bool = False, **knobs) -> Pipeline:
     """Plan ``method`` for frames like ``info`` on ``context``.
 
     ``info`` may describe a family rather than one frame: a renderer that knows its largest
@@ -61,6 +62,10 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     halves (the samples' means: Rousselle et al. 2012's dual-buffer filter, consistent
     through the safeguard's blend toward box). ``nlm_scales=S`` (1..6) also
     filters each half's low band at S - 1 coarser scales (each half the last's resolution).
+    ``hybrid=True`` (with ``nlm``, not with box or ``safeguard=False``) runs the method's
+    safeguarded chain and box's own halves through the same filter, and blends the two per
+    pixel by their error estimates (:mod:`clrecon.methods.hybrid`); it always estimates its
+    error.
     """
     safeguard = check_bool("safeguard", safeguard, none_ok=True)
     estimate_error = check_bool("estimate_error", estimate_error)
@@ -71,6 +76,20 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
         raise ValueError(f"nlm_scales: {nlm_scales} scales of the non-local means need nlm=R "
                          f"(a search radius 1..10)")
     guide_blend = check_bool("guide_blend", guide_blend)
+    hybrid = check_bool("hybrid", hybrid)
+    if hybrid:
+        for bad, why in ((method == "box", "box's own chain is one of its members; pick a "
+                          "method (sweep, layered or splat)"),
+                         (not nlm, "needs nlm=R (box's halves are filtered by the chain's "
+                          "non-local means)"),
+                         (safeguard is False, "blends two safeguarded images; "
+                          "safeguard=False is not one"),
+                         (info.spp < 2, f"needs >= 2 samples per pixel (two independent "
+                          f"halves), the frame has {info.spp}")):
+            if bad:
+                raise ValueError(f"hybrid: {why}")
+        return _hybrid(method, context, info, grow, guided, guide_blend, nlm, nlm_scales,
+                       knobs)
     inner = make_method(method, context, info, **knobs)
     if safeguard is None:
         safeguard = (method != "box" or bool(nlm)) and info.spp >= 2
@@ -100,9 +119,23 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     return pipe
 
 
+def _hybrid(method, context, info, grow, guided, guide_blend, nlm, nlm_scales, knobs):
+    """The method's safeguarded chain and box's, blended by their error estimates."""
+    def members(at):
+        chain = make_pipeline(method, context, at, guided=guided, guide_blend=guide_blend,
+                              nlm=nlm, nlm_scales=nlm_scales, estimate_error=True, **knobs)
+        boxes = make_pipeline("box", context, at, nlm=nlm, nlm_scales=nlm_scales,
+                              estimate_error=True)
+        return chain, boxes
+
+    pipe = Hybrid(context, info, *members(info), members)
+    pipe.grow, pipe.knobs = bool(grow), dict(knobs)
+    return pipe
+
+
 #: knobs every method takes through :func:`make_pipeline` (beside its class's own)
 PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided", "guide_blend", "nlm",
-                  "nlm_scales")
+                  "nlm_scales", "hybrid")
 
 
 def method_knobs(method: str) -> set[str]:

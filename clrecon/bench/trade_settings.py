@@ -53,5 +53,8 @@ TRADES: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
         ("splat guided nlm3x4", {"guided": 2, "nlm": 3, "nlm_scales": 4, "safeguard": False}),
         ("splat guided nlm3x4 +safeguard", {"guided": 2, "nlm": 3, "nlm_scales": 4}),
         ("splat guided nlm +safeguard", {"guided": 2, "nlm": 5}),
+        # the chain and box's halves through the same filter, blended by their estimates
+        ("splat guided nlm3x4 +hybrid", {"guided": 2, "nlm": 3, "nlm_scales": 4,
+                                         "hybrid": True}),
     ),
 }

@@ -89,6 +89,8 @@ DESCRIPTIONS = {
     "nlm": "average each half's image further with non-local means over (2N+1)^2 pixels, "
            "weighted by the other half (0: off; 1..10)",
     "nlm_scales": "with --nlm: filter each half's low band at N - 1 coarser scales too (1..6)",
+    "hybrid": "with --nlm: blend the method's chain per pixel with box's own halves through "
+              "the same filter, by their error estimates",
 }
 
 

@@ -46,6 +46,7 @@ VARIANTS = [
     ("splat-guided", "splat", {"guided": 2, "safeguard": True}),
     ("splat-guided-nlm", "splat", {"guided": 2, "nlm": 3, "nlm_scales": 3, "safeguard": True}),
     ("box-nlm", "box", {"nlm": 3, "estimate_error": True}),
+    ("splat-hybrid", "splat", {"guided": 2, "nlm": 3, "hybrid": True, "estimate_error": True}),
 ]
 # the papers' methods alone, unless the variant is about the safeguard
 VARIANTS = [(v, m, k if m == "box" or "estimate_error" in k or "safeguard" in k
