@@ -64,8 +64,8 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     filters each half's low band at S - 1 coarser scales (each half the last's resolution).
     ``hybrid=True`` (with ``nlm``, not with box or ``safeguard=False``) runs the method's
     safeguarded chain and box's own halves through the same filter, and blends the two per
-    pixel by their error estimates (:mod:`clrecon.methods.hybrid`); it always estimates its
-    error.
+    pixel by their error estimates (:mod:`clrecon.methods.hybrid`; below 8 spp the chain
+    alone); it always estimates its error.
     """
     safeguard = check_bool("safeguard", safeguard, none_ok=True)
     estimate_error = check_bool("estimate_error", estimate_error)
@@ -121,14 +121,15 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
 
 def _hybrid(method, context, info, grow, guided, guide_blend, nlm, nlm_scales, knobs):
     """The method's safeguarded chain and box's, blended by their error estimates."""
-    def members(at):
-        chain = make_pipeline(method, context, at, guided=guided, guide_blend=guide_blend,
-                              nlm=nlm, nlm_scales=nlm_scales, estimate_error=True, **knobs)
-        boxes = make_pipeline("box", context, at, nlm=nlm, nlm_scales=nlm_scales,
-                              estimate_error=True)
-        return chain, boxes
+    def chain(at):
+        return make_pipeline(method, context, at, guided=guided, guide_blend=guide_blend,
+                             nlm=nlm, nlm_scales=nlm_scales, estimate_error=True, **knobs)
 
-    pipe = Hybrid(context, info, *members(info), members)
+    def boxes(at):
+        return make_pipeline("box", context, at, nlm=nlm, nlm_scales=nlm_scales,
+                             estimate_error=True)
+
+    pipe = Hybrid(context, info, chain, boxes)
     pipe.grow, pipe.knobs = bool(grow), dict(knobs)
     return pipe
 

@@ -14,11 +14,16 @@ How. The members are the method's safeguarded chain and box's, each with the fra
 window), the chain weighs ``wa = Sb / (Sa + Sb)`` (inverse-error weights); the image is
 ``b + wa (a - b)``. The error estimate is ``(wa sqrt(ea) + (1 - wa) sqrt(eb))^2`` from the
 pixel's own estimates: the blend's squared error were the two errors fully correlated, an
-upper bound for any correlation (both images come from the same samples). Measured before it
-was built (a NumPy prototype on the device's images, 512x512, 8, 16, 64 spp, six blurred
-scenes): the inverse weights over 7x7 gained over the chain alone on four scenes (up to
-+3.4 dB, fast_motion at 64 spp) and lost 0.03-0.15 dB on bokeh and huge_coc; a per-pixel
-choice of the smaller estimate, or a 1x1 or 3x3 window, did worse.
+upper bound for any correlation (both images come from the same samples). Below 8 spp the
+chain runs alone (:func:`blends`).
+
+Measured (``docs/measurements/trade-512-hybrid.md``: ``splat guided nlm3x4 +hybrid``
+against the chain alone, 512x512, six blurred scenes): at 8-64 spp +0.2 to +1.2 dB on fence
+(16-64), spheres, deep and fast_motion (+3.35 at 64 spp, still 1.7 dB below box nlm alone:
+the estimates are not sharp enough to give it all the weight), -0.02 to -0.15 on fence (8),
+bokeh (8, 16) and huge_coc; at 4 spp, before the gate, -0.4 to -1.2 on fence, deep and
+fast_motion. A NumPy prototype on the device's images measured the alternatives: a per-pixel
+choice of the smaller estimate, or the estimates' 1x1 or 3x3 means, did worse on most cells.
 
 Cost: both members, then one pass (the box member at 512x512: 60-80 ms).
 """
@@ -30,9 +35,19 @@ import pyopencl as cl
 from clrecon.core.device import get_kernel
 from clrecon.core.pipeline import Pipeline
 from clrecon.core.plan import Plan, Step, unique_bounds
+from clrecon.methods.safeguard_passes import MIN_TEST_HALF, halves
 
 #: the error estimates' window half side (the safeguard's 7x7 bias window)
 HR = 3
+
+
+def blends(spp: int) -> bool:
+    """Whether a frame of ``spp`` samples a pixel is blended: each half holds at least
+    :data:`~clrecon.methods.safeguard_passes.MIN_TEST_HALF` samples (8 spp), the count from
+    which the safeguard takes its windows' means as they come. Below, the estimates from
+    halves of 2-3 samples are mostly noise: at 4 spp the blend lost 0.4-1.2 dB to the chain
+    on fence, deep and fast_motion (512x512), so the chain runs alone."""
+    return min(halves(int(spp))) >= MIN_TEST_HALF
 _FLT_MAX = float(np.finfo(np.float32).max)
 
 
@@ -74,27 +89,39 @@ class HybridBlend:
 
 
 class Hybrid(Pipeline):
-    """``chain`` and ``box`` (two :class:`~clrecon.methods.safeguard.Safeguarded` pipelines
-    of the frame, both estimating their error) blended by ``hybrid_blend``."""
+    """The method's chain and box's (two :class:`~clrecon.methods.safeguard.Safeguarded`
+    pipelines of the frame, both estimating their error) blended by ``hybrid_blend``; below
+    8 spp the chain alone (:func:`blends`)."""
 
     #: the weights depend on the colours (see :func:`clrecon.core.pipeline.run`)
     color_linear = False
 
-    def __init__(self, context, info, chain: Pipeline, box: Pipeline, make):
-        """``make(info) -> (chain, box)`` re-plans both members (:meth:`regrow`)."""
+    def __init__(self, context, info, make_chain, make_box):
+        """``make_chain(info)``, ``make_box(info)``: the members planned for a frame (again
+        on :meth:`regrow`)."""
         super().__init__(context, info)
-        self.chain, self.box, self._make = chain, box, make
+        self._make = (make_chain, make_box)
+        self.chain = chain = make_chain(info)
+        self.box = box = make_box(info) if blends(info.spp) else None
         self.name = chain.name
-        self.blend = HybridBlend(context)
         npx = info.width * info.height
-        fields = tuple(dict.fromkeys(chain.plan.fields + box.plan.fields))
-        steps = (Step(f"{chain.name} chain", fields, ("ia",), self._member(chain, "ia", "")),
-                 Step("box nlm", ("color",), ("ib",), self._member(box, "ib", "box nlm: ")),
-                 Step("hybrid_blend", ("ia", "ib"), ("out", "error"), self._blend))
-        plan = Plan(chain.name, f"{chain.plan.name}+hybrid", fields, steps,
-                    {"ia": npx * 12, "ib": npx * 12, "error": npx * 4},
-                    unique_bounds(tuple(chain.plan.bounds) + tuple(box.plan.bounds)))
-        self.set_plan(plan)
+        if box is None:  # the chain into the image, its estimate into the error
+            steps = (Step(f"{chain.name} chain", chain.plan.fields, ("out",),
+                          self._member(chain, "out", "")),
+                     Step("hybrid_error", (), ("error",), self._copy_error))
+            temps, bounds = {"error": npx * 4}, tuple(chain.plan.bounds)
+            fields = chain.plan.fields
+        else:
+            self.blend = HybridBlend(context)
+            fields = tuple(dict.fromkeys(chain.plan.fields + box.plan.fields))
+            steps = (Step(f"{chain.name} chain", fields, ("ia",),
+                          self._member(chain, "ia", "")),
+                     Step("box nlm", ("color",), ("ib",), self._member(box, "ib", "box nlm: ")),
+                     Step("hybrid_blend", ("ia", "ib"), ("out", "error"), self._blend))
+            temps = {"ia": npx * 12, "ib": npx * 12, "error": npx * 4}
+            bounds = tuple(chain.plan.bounds) + tuple(box.plan.bounds)
+        self.set_plan(Plan(chain.name, f"{chain.plan.name}+hybrid", fields, steps, temps,
+                           unique_bounds(bounds)))
 
     @staticmethod
     def _member(pipe, out: str, prefix: str):
@@ -103,6 +130,11 @@ class Hybrid(Pipeline):
             return [(prefix + name, ev) for name, ev in pipe.events]
         return run
 
+    def _copy_error(self, queue, f, wait_for):
+        return [("hybrid_error", cl.enqueue_copy(queue, f.buffers["error"],
+                                                 self.chain.buffer("error"),
+                                                 wait_for=wait_for))]
+
     def _blend(self, queue, f, wait_for):
         b = f.buffers
         return [("hybrid_blend", self.blend(queue, b["ia"], self.chain.buffer("error"), b["ib"],
@@ -110,13 +142,15 @@ class Hybrid(Pipeline):
                                             f.width, f.height, wait_for))]
 
     def regrow(self, info) -> None:
-        chain, box = self._make(info)
-        self.__init__(self.context, info, chain, box, self._make)
+        self.__init__(self.context, info, *self._make)
 
     def describe(self) -> dict:
         d = dict(self.chain.describe())
-        d["hybrid"] = {"with": self.box.plan.name, "window": 2 * HR + 1,
-                       "weights": "inverse of the 7x7 sums of the error estimates"}
+        d["hybrid"] = {"with": None if self.box is None else self.box.plan.name,
+                       "window": 2 * HR + 1,
+                       "weights": "inverse of the 7x7 sums of the error estimates"
+                       if self.box is not None else
+                       f"the chain alone: halves of fewer than {MIN_TEST_HALF} samples"}
         d["estimate_error"] = True
         d["plan"] = self.plan.name
         return d

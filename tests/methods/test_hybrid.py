@@ -23,7 +23,7 @@ CHAIN = {"guided": 2, "nlm": 3}
 
 
 @pytest.mark.parametrize("method", ["sweep", "layered", "splat"])
-@pytest.mark.parametrize("spp", [5, 16])
+@pytest.mark.parametrize("spp", [8, 17])
 def test_pipeline_blends_its_members(device, rng, method, spp):
     """The members' images are the chain's and box nlm's own (run alone on the frame), and
     the image and error are the reference blend of the members' images and estimates."""
@@ -48,6 +48,19 @@ def test_pipeline_blends_its_members(device, rng, method, spp):
     d = pipe.describe()
     assert d["method"] == method and d["hybrid"]["with"] == "box+nlm+safeguard"
     assert d["plan"].endswith("+hybrid") and d["estimate_error"] is True
+
+
+@pytest.mark.parametrize("spp", [2, 5, 7])
+def test_below_8_spp_the_chain_alone(device, rng, spp):
+    """Halves of fewer than 4 samples: the chain's image and error estimate, bit for bit,
+    and no box member."""
+    buf = frame(rng, h=13, w=11, s=spp)
+    got = run(buf, method="splat", device=device, hybrid=True, estimate_error=True, **CHAIN)
+    alone = run(buf, method="splat", device=device, estimate_error=True, **CHAIN)
+    assert np.array_equal(got.image, alone.image) and np.array_equal(got.error, alone.error)
+    assert not any(k.startswith("box nlm") for k in got.pass_ms)
+    assert got.method["hybrid"]["with"] is None and not hybrid.blends(spp)
+    assert hybrid.blends(8) and hybrid.blends(9)
 
 
 def test_run_returns_the_blend_and_its_error(device, rng):
@@ -76,9 +89,10 @@ def test_knob_contract(device, rng):
 
 def test_frames_it_was_not_built_for(device, rng):
     """Reused frame after frame: a frame of another shape is refused with the bound named;
-    with grow=True both members re-plan and the image is a fresh pipeline's."""
+    with grow=True both members re-plan (from 4 spp, the chain alone, to 8, blended) and
+    the image is a fresh pipeline's."""
     a = frame(rng, h=16, w=18, s=4)
-    b = frame(rng, h=21, w=23, s=6)
+    b = frame(rng, h=21, w=23, s=8)
     pipe, _ = run_plan(device, a, "splat", hybrid=True, **CHAIN)
     out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, b.height * b.width * 12)
     with pytest.raises(ValueError, match="width"):
@@ -87,7 +101,7 @@ def test_frames_it_was_not_built_for(device, rng):
     grown(device.queue, DeviceSamples.wrap(device.context, b, b.arrays().keys()), out)
     img = np.empty((b.height, b.width, 3), np.float32)
     cl.enqueue_copy(device.queue, img, out)
-    assert grown.describe()["hybrid"] and grown.info.width == b.width
+    assert grown.describe()["hybrid"]["with"] and grown.info.width == b.width
     assert_close(img, run(b, method="splat", device=device, hybrid=True, **CHAIN).image,
                  rtol=1e-5, atol=1e-6, what="grown image")
 
@@ -96,7 +110,7 @@ def test_negative_radiance_is_its_parts_difference(device):
     """The weights depend on the colours: a frame with negative colours runs once per part
     (run()'s rule for such pipelines) and gives f(c+) - f(c-)."""
     def make():  # the same frame each call (one seed)
-        return frame(np.random.default_rng(7), h=12, w=13, s=6)
+        return frame(np.random.default_rng(7), h=12, w=13, s=8)
 
     signed, pos_part, neg_part = make(), make(), make()
     signed.color[::3] *= -0.5
