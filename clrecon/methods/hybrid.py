@@ -18,7 +18,7 @@ upper bound for any correlation (both images come from the same samples). Below 
 chain runs alone (:func:`blends`).
 
 Measured (``docs/measurements/trade-512-hybrid.md``: ``splat guided nlm3x4 +hybrid``
-against the chain alone, 512x512, six blurred scenes): at 8-64 spp +0.2 to +1.2 dB on fence
+against the chain alone, 512x512, six blurred scenes): at 8-64 spp +0.21 to +1.25 dB on fence
 (16-64), spheres, deep and fast_motion (+3.35 at 64 spp, still 1.7 dB below box nlm alone:
 the estimates are not sharp enough to give it all the weight), -0.02 to -0.15 on fence (8),
 bokeh (8, 16) and huge_coc; at 4 spp, before the gate, -0.4 to -1.2 on fence, deep and
