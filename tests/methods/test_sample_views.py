@@ -63,10 +63,10 @@ def test_whole_frame_pipelines_refuse_a_view(device):
 @pytest.mark.parametrize("method, knobs", [("sweep", {"sort": "block"}),
                                            ("splat", {"mip_radius": 3.0}),
                                            ("splat", {"mip_radius": 3.0, "scatter": "atomic"})])
-@pytest.mark.parametrize("spp", [4, 5, 8])
+@pytest.mark.parametrize("spp", [4, 5, 8, 16, 24])
 def test_a_pass_reads_a_view_as_its_half(device, spp, method, knobs):
-    """(8 spp: halves of 4 samples a pixel, which splat's bin records on a CPU read as two
-    pixels' runs of 4 a step; 4 and 5: gathers)"""
+    """(8, 16, 24 spp: halves of 4k samples a pixel, which splat's bin records on a CPU read
+    as runs of 4 a step, of one pixel or two; 4 and 5: gathers)"""
     buf = frame(np.random.default_rng(spp), h=13, w=11, s=spp)
     s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
     ha, _ = sg.halves(spp)
