@@ -34,6 +34,10 @@ SETTINGS = [
     # the quality end of the trade: the guided refinement, and non-local means on its halves
     ("splat guided (+safeguard)", "splat", {"guided": 2}),
     ("splat guided nlm3 (+safeguard)", "splat", {"guided": 2, "nlm": 3}),
+    # box's own halves through the filter, and the hybrid of the chain with it
+    ("box nlm3x4 (+safeguard)", "box", {"nlm": 3, "nlm_scales": 4}),
+    ("splat guided nlm3x4 +hybrid", "splat", {"guided": 2, "nlm": 3, "nlm_scales": 4,
+                                              "hybrid": True}),
 ]
 #: run once (a round of it takes ~20 s at 720p): the paper's plan, for the before/after
 SLOW = [("splat paper (mip_radius=0)", "splat", {"mip_radius": 0, "safeguard": False})]
