@@ -7,9 +7,9 @@
  *                 wa = Sb / (Sa + Sb) (inverse-error weights), or where that sum is 0 or not
  *                 finite, 1, 0 or 1/2 as Sa <, > or == Sb; out = wa a + (1 - wa) b;
  *                 error = (wa sqrt(ea) + (1 - wa) sqrt(eb))^2 from the pixel's own estimates:
- *                 the squared error of the blend if the two errors were fully correlated,
- *                 an upper bound for any correlation (both images come from the same
- *                 samples), saturated at FLT_MAX.
+ *                 the squared error of the blend if the two estimates were exact and the
+ *                 errors fully correlated (both images come from the same samples), the
+ *                 largest any correlation gives; saturated at FLT_MAX.
  * Arguments: a, b (H, W, 3), ea, eb (H, W) the estimates (non-negative, finite), out
  * (H, W, 3), error (H, W), W, H. One work-item per pixel (2D range rounded up; items outside
  * the image return); local size: the runtime's.
