@@ -52,6 +52,8 @@ def blends(spp: int) -> bool:
     halves of 2-3 samples are mostly noise: at 4 spp the blend lost 0.4-1.2 dB to the chain
     on fence, deep and fast_motion (512x512), so the chain runs alone."""
     return min(halves(int(spp))) >= MIN_TEST_HALF
+
+
 _FLT_MAX = float(np.finfo(np.float32).max)
 
 
@@ -106,7 +108,9 @@ class Hybrid(Pipeline):
         super().__init__(context, info)
         self._make = (make_chain, make_box)
         self.chain = chain = make_chain(info)
-        self.box = box = make_box(info) if blends(info.spp) else None
+        # a chain planned as box (a frame without blur) already is box's nlm: no second one
+        self.alone = not blends(info.spp) or getattr(chain, "box_halves", False)
+        self.box = box = None if self.alone else make_box(info)
         self.name = chain.name
         npx = info.width * info.height
         if box is None:  # the chain into the image, its estimate into the error
@@ -154,7 +158,9 @@ class Hybrid(Pipeline):
                        "window": 2 * HR + 1,
                        "weights": "inverse of the 7x7 sums of the error estimates"
                        if self.box is not None else
-                       f"the chain alone: halves of fewer than {MIN_TEST_HALF} samples"}
+                       f"the chain alone: halves of fewer than {MIN_TEST_HALF} samples"
+                       if not blends(self.info.spp) else
+                       "the chain alone: planned as box, it is box's nlm"}
         d["estimate_error"] = True
         d["plan"] = self.plan.name
         return d

@@ -136,7 +136,8 @@ class Safeguarded(Pipeline):
         # box's variance, and there is nothing to blend
         is_box = method == "box" or self.full.plan.name == BOX_PLAN
         # nlm on box's own halves (box, or a method planned as box): blended like a method's
-        self.box_halves = is_box and nl.check_radius(nlm) > 0
+        nlm = nl.check_radius(nlm)
+        self.box_halves = is_box and nlm > 0
         self.mode = MODE_BOX if is_box and not self.box_halves else (
             MODE_BLEND if blend else MODE_METHOD)
         # a method whose weights do not depend on the sample count (its class says so) gets
@@ -148,9 +149,8 @@ class Safeguarded(Pipeline):
         self.guided = 0 if is_box else check_radius(guided)
         # nlm: the halves' images (the method's or the refined ones) averaged further with
         # dual-buffer non-local means (clrecon.methods.nlm)
-        self.nlm = nl.check_radius(nlm) if self.box_halves or not is_box else 0
-        # box's image is its halves' mean by definition
-        mean_of_halves = self.full.halves_mean or self.box_halves
+        self.nlm = nlm if self.box_halves or not is_box else 0
+        mean_of_halves = self.full.halves_mean or self.box_halves  # box's: by definition
         for knob, on in (("guided", self.guided), ("nlm", self.nlm)):
             if on and not mean_of_halves:
                 raise ValueError(f"{knob}: {method}'s image is not the mean of its halves' "

@@ -63,6 +63,17 @@ def test_below_8_spp_the_chain_alone(device, rng, spp):
     assert hybrid.blends(8) and hybrid.blends(9)
 
 
+def test_a_frame_without_blur_runs_box_nlm_once(device, rng):
+    """A chain planned as box is box's nlm already: no second member, the image is
+    ``run(method="box", nlm=...)``'s."""
+    still = frame(rng, h=12, w=12, s=8, motion=False, aperture=0.0)
+    got = run(still, method="splat", device=device, hybrid=True, estimate_error=True, **CHAIN)
+    want = run(still, method="box", device=device, nlm=3, estimate_error=True)
+    assert np.array_equal(got.image, want.image) and np.array_equal(got.error, want.error)
+    assert got.method["hybrid"]["with"] is None
+    assert not any(k.startswith("box nlm") for k in got.pass_ms)
+
+
 def test_run_returns_the_blend_and_its_error(device, rng):
     buf = frame(rng, h=14, w=15, s=8)
     a = run(buf, method="splat", device=device, hybrid=True, **CHAIN)
