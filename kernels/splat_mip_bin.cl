@@ -339,6 +339,12 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
             if (stride == SPP) {
                 for (; j0 + 8 <= n; j0 += 8)
                     MIP_STEP8(MIP_CONTIG, first + j0, 0, lane);
+            } else if (SPP % 8 == 0) {
+                /* a view of 8k samples a pixel (the halves of frames of 16, 32, ... spp):
+                 * the 8 lanes are one pixel's consecutive samples (first and j0 are
+                 * multiples of 8) */
+                for (; j0 + 8 <= n; j0 += 8)
+                    MIP_STEP8(MIP_CONTIG, mip_element(first + j0, stride, offset), 0, lane);
             } else if (SPP % 4 == 0) {
                 /* a view of 4k samples a pixel (the halves of frames of 8, 16, 24, ... spp):
                  * lanes 0-3 and 4-7 each a run of one pixel's (first and j0 are multiples of
