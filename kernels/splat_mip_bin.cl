@@ -3,7 +3,7 @@
  *
  * splat_mip_bin_*: each sample adds into the bin of its layer, level and level pixel
  * q = floor(centre / s) (three float4: (rgb w, w), w (r/s, mx/s, my/s, 0), w (fx, fy, 0, 0),
- * w = 1 / SPP, (fx, fy) the centre's offset inside q).
+ * w = 1 / SPP (1 / JOINT_HA), (fx, fy) the centre's offset inside q).
  * A sample's centre, layer and CoC are splat.cl's (splat.h); its level is the lowest with
  * r <= TR[l] and L <= TM[l], where r / s and L / s are clamped to RL[l] and ML[l].
  *   splat_mip_bin_samples  one work-item per sample, atomic adds (any device)
@@ -19,7 +19,10 @@
  * (k = pixel SPP + i) is element pixel stride + offset + i.
  * Compile-time: SPP, HAS_MOTION, NLAYERS, NLEV, and the per-level lists TR, TM, RL, ML
  * (floats, NLEV each; TR[NLEV - 1], TM[NLEV - 1] unused); BIN_VW (1 or 8: the owner tiles'
- * records 8 samples a step as float8 lanes, on CPUs).
+ * records 8 samples a step as float8 lanes, on CPUs); JOINT_HA (> 0, owner tiles only: both
+ * of the safeguard's equal halves of a whole frame in one pass, SPP == 2 JOINT_HA: samples
+ * 0 .. JOINT_HA - 1 of each pixel into bins and flags, the rest into bins_b and flags_b,
+ * each weighted 1 / JOINT_HA; the bins equal bit for bit those of each half's own pass).
  */
 #include "splat_mip.h"
 
@@ -28,6 +31,17 @@
 #define TM 32.0f
 #define RL 8.0f
 #define ML 32.0f
+#endif
+#ifndef JOINT_HA
+#define JOINT_HA 0
+#endif
+#if JOINT_HA
+#if SPP != 2 * JOINT_HA
+#error "JOINT_HA: equal halves of the frame's SPP samples"
+#endif
+#define W_SPP JOINT_HA  /* a sample's weight: 1 / (its half's samples a pixel) */
+#else
+#define W_SPP SPP
 #endif
 __constant float mip_tr[NLEV] = {TR};
 __constant float mip_tm[NLEV] = {TM};
@@ -45,7 +59,7 @@ __constant float mip_ml[NLEV] = {ML};
     inv_far, layer_scale, lv, bins
 
 /* The sample at element k of the fields: its bin (its pixel index, -1: none) and what it adds there: r0..r8 = w (r, g, b, 1,
- * r / s, mx / s, my / s, fx, fy), w = 1 / SPP, (fx, fy) the centre's offset inside its bin.
+ * r / s, mx / s, my / s, fx, fy), w = 1 / W_SPP, (fx, fy) the centre's offset inside its bin.
  * Nine scalars (no private array), so that they stay in registers. */
 #define MIP_REC float *r0, float *r1, float *r2, float *r3, float *r4, float *r5, float *r6, \
     float *r7, float *r8
@@ -94,7 +108,7 @@ __attribute__((always_inline)) inline int mip_record(const int k, MIP_BIN_ARGS, 
     const int e = g.w / 2;  /* the level's reach */
     const int out = qx < e - g.w || qy < e - g.w || qx >= g.y - g.w - e
                     || qy >= g.z - g.w - e;
-    const float w = 1.0f / (float)SPP, wm = w * ms * inv_s;
+    const float w = 1.0f / (float)W_SPP, wm = w * ms * inv_s;
     *r0 = color[3 * k] * w;
     *r1 = color[3 * k + 1] * w;
     *r2 = color[3 * k + 2] * w;
@@ -219,7 +233,7 @@ __attribute__((always_inline)) inline int8 mip_record8(
     const int8 qx = convert_int8(fx), qy = convert_int8(fy);
     const int8 e = gw / 2;
     const int8 out = (qx < e - gw) | (qy < e - gw) | (qx >= gy - gw - e) | (qy >= gz - gw - e);
-    const float w = 1.0f / (float)SPP;
+    const float w = 1.0f / (float)W_SPP;
     const float8 wm = w * ms * inv_s;
     *r0 = mip_ld3(color, 0, mode, k0, k1, k) * w;
     *r1 = mip_ld3(color, 1, mode, k0, k1, k) * w;
@@ -271,6 +285,7 @@ __attribute__((always_inline)) inline int mip_element(const int ks, const int st
     return (ks / SPP) * stride + offset + ks % SPP;
 }
 
+#if !JOINT_HA
 /* One work-item per sample, atomic adds (any device). */
 __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
 {
@@ -282,6 +297,7 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
     if (idx >= 0)
         mip_bin_add(bins, idx, v0, v1, v2, v3, v4, v5, v6, v7, v8, 1);
 }
+#endif
 
 #define ROW_MAX 512
 /* sample element k's record into slot j of the tiles' local arrays (one sample; with
@@ -293,6 +309,28 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
         r0[j] = v0; r1[j] = v1; r2[j] = v2; r3[j] = v3; r4[j] = v4; \
         r5[j] = v5; r6[j] = v6; r7[j] = v7; r8[j] = v8; \
     } while (0)
+/* the run (bin cur, sums a0 .. a8) into its bin and flag, if any */
+#define MIP_RUN_END(cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, bins, flags) \
+    do { \
+        if ((cur) >= 0) { \
+            mip_bin_add((bins), (cur), a0, a1, a2, a3, a4, a5, a6, a7, a8, 0); \
+            (flags)[cur] = 1; \
+        } \
+    } while (0)
+/* record j of the local arrays: extends the run, or ends it and starts the next */
+#define MIP_RUN(cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, bins, flags, j) \
+    do { \
+        const int idx_ = ridx[j]; \
+        if (idx_ != (cur)) { \
+            MIP_RUN_END(cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, bins, flags); \
+            cur = idx_; \
+            a0 = r0[j]; a1 = r1[j]; a2 = r2[j]; a3 = r3[j]; a4 = r4[j]; \
+            a5 = r5[j]; a6 = r6[j]; a7 = r7[j]; a8 = r8[j]; \
+        } else { \
+            a0 += r0[j]; a1 += r1[j]; a2 += r2[j]; a3 += r3[j]; a4 += r4[j]; \
+            a5 += r5[j]; a6 += r6[j]; a7 += r7[j]; a8 += r8[j]; \
+        } \
+    } while (0)
 /* One work-item (and work-group) per owner tile of tile x tile frame pixels: the
  * host launches the k x k phases in turn with (k - 1) tile > 2 R - 1, R bounding how
  * far from its pixel a sample's bin lies (frame pixels), so no two work-items of a launch
@@ -303,7 +341,11 @@ __kernel void splat_mip_bin_samples(MIP_BIN_ARGS, const int nsamples)
  * (reproducible). (PoCL 3.1 on AVX-512 hosts left that loop scalar: hence BIN_VW.) */
 __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int height,
                                   const int tile, const int k, const int phase_x,
-                                  const int phase_y, __global uchar *flags)
+                                  const int phase_y, __global uchar *flags
+#if JOINT_HA
+                                  , __global float *bins_b, __global uchar *flags_b
+#endif
+                                  )
 {
     __local int ridx[ROW_MAX];
     __local float r0[ROW_MAX], r1[ROW_MAX], r2[ROW_MAX], r3[ROW_MAX], r4[ROW_MAX],
@@ -319,7 +361,19 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
         glv[j] = lv[j];
     const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
 #endif
-    for (int y = y0; y < min(y0 + tile, height); ++y)
+    for (int y = y0; y < min(y0 + tile, height); ++y) {
+        /* a run of consecutive records into one bin (a pixel's samples, a coarse level's
+         * neighbours) is summed in registers: one add into the bin per run; a run may span
+         * the row's chunks (so the adds do not depend on ROW_MAX). With JOINT_HA each half
+         * has its own run, and sees its samples in the order of its own pass. */
+        int cur = -1;
+        float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f, a4 = 0.0f, a5 = 0.0f, a6 = 0.0f,
+              a7 = 0.0f, a8 = 0.0f;
+#if JOINT_HA
+        int curb = -1;
+        float b0 = 0.0f, b1 = 0.0f, b2 = 0.0f, b3 = 0.0f, b4 = 0.0f, b5 = 0.0f, b6 = 0.0f,
+              b7 = 0.0f, b8 = 0.0f;
+#endif
         for (int c = 0; c < row; c += ROW_MAX) {
             const int first = (y * width + x0) * SPP + c, n = min(ROW_MAX, row - c);
             int j0 = 0;
@@ -367,29 +421,19 @@ __kernel void splat_mip_bin_tiles(MIP_BIN_ARGS, const int width, const int heigh
                 for (int j = j0; j < n; ++j)
                     MIP_RECORD_INTO(j, mip_element(first + j, stride, offset));
             }
-            /* consecutive samples that share a bin (a pixel's samples, a coarse level's
-             * neighbours) are summed in registers first: one add into the bin per run */
-            int cur = -1;
-            float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f, a4 = 0.0f, a5 = 0.0f,
-                  a6 = 0.0f, a7 = 0.0f, a8 = 0.0f;
             for (int j = 0; j < n; ++j) {
-                const int idx = ridx[j];
-                if (idx != cur) {
-                    if (cur >= 0) {
-                        mip_bin_add(bins, cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, 0);
-                        flags[cur] = 1;
-                    }
-                    cur = idx;
-                    a0 = r0[j]; a1 = r1[j]; a2 = r2[j]; a3 = r3[j]; a4 = r4[j];
-                    a5 = r5[j]; a6 = r6[j]; a7 = r7[j]; a8 = r8[j];
-                } else {
-                    a0 += r0[j]; a1 += r1[j]; a2 += r2[j]; a3 += r3[j]; a4 += r4[j];
-                    a5 += r5[j]; a6 += r6[j]; a7 += r7[j]; a8 += r8[j];
+#if JOINT_HA
+                if ((c + j) % SPP >= JOINT_HA) {  /* (first - c is a pixel's first sample) */
+                    MIP_RUN(curb, b0, b1, b2, b3, b4, b5, b6, b7, b8, bins_b, flags_b, j);
+                    continue;
                 }
-            }
-            if (cur >= 0) {
-                mip_bin_add(bins, cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, 0);
-                flags[cur] = 1;
+#endif
+                MIP_RUN(cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, bins, flags, j);
             }
         }
+        MIP_RUN_END(cur, a0, a1, a2, a3, a4, a5, a6, a7, a8, bins, flags);
+#if JOINT_HA
+        MIP_RUN_END(curb, b0, b1, b2, b3, b4, b5, b6, b7, b8, bins_b, flags_b);
+#endif
+    }
 }

@@ -61,8 +61,8 @@ both halves filter those partitions (measured: the README's safeguard section).
 
 Cost: the method runs on both halves, plus a split copy of the fields (none where its
 passes read each half in place, ``Pipeline.sample_views``) and three cheap passes. A method's
-``joint_steps`` (layered's reproject: one read of the samples) run once on the frame for
-both halves, B's outputs apart (off where B's buffers do not fit).
+``joint_steps`` (layered's reproject, splat's bins: one read of the samples) run once on
+the frame for both halves, B's outputs apart (off where B's buffers do not fit).
 ``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports).
 """
 from __future__ import annotations
@@ -114,9 +114,8 @@ class Safeguarded(Pipeline):
     The error image is the temporary ``"error"`` ((H, W) float32: the estimated squared
     error of the image, linear radiance, mean over RGB). ``views=False`` copies the halves
     (``safeguard_split``) even where the method could read them in place. ``joint=False``
-    runs the steps a method can run for both halves at once (its ``joint_steps``: layered's
-    reproject, which reads the frame's samples once) on each half instead; the images are
-    the same bit for bit.
+    runs the steps a method can run for both halves at once (its ``joint_steps``, which
+    read the frame's samples once) on each half instead; the images are the same bit for bit.
     """
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
@@ -181,11 +180,11 @@ class Safeguarded(Pipeline):
             f"{h}.{f}" for h in "ab" for f in inner_fields)
         # steps the frame runs once for both halves, and their outputs the halves' rest reads
         js = tuple(getattr(self.full, "joint_steps", ())) if joint and self.views else ()
-        self.joint = js if self.shared and all(n in have for n in js) else ()
+        self.joint = js if self.halves_mean and all(n in have for n in js) else ()
         rest_in = {i for st in self.half_a.plan.steps if st.name not in self.shared + self.joint
                    for i in st.inputs} if self.joint else set()
-        self.joint_out = tuple(o for n in self.joint for o in have[n].outputs
-                               if o in self.full.plan.temporaries and o in rest_in)
+        self.joint_out = tuple(dict.fromkeys(o for n in self.joint for o in have[n].outputs
+                                             if o in self.full.plan.temporaries and o in rest_in))
         steps = []
         if self.box_halves:
             temps |= {"ma": npx * 12, "mb": npx * 12}
@@ -302,7 +301,7 @@ class Safeguarded(Pipeline):
                     ds = DeviceSamples(f.height, f.width, n,
                                        {k: f.buffers[f"{half}.{k}"] for k in fields},
                                        f.samples.coc, info)
-                if self.shared:  # the frame's outputs of the shared steps, the rest here
+                if self.shared or self.joint:  # the frame's outputs of those, the rest here
                     done = self.shared + self.joint
                     rest = tuple(st.name for st in pipe.plan.steps if st.name not in done)
                     given = {k: self.full.buffer(k) for k in self.shared_out
@@ -315,6 +314,8 @@ class Safeguarded(Pipeline):
                 else:
                     pipe(queue, ds, f.buffers[out], wait_for=wait_for)
                 evs.extend((f"{name} (halves)", ev) for name, ev in pipe.events)
+            if self.joint and hasattr(self.full, "joint_drawn"):  # splat: bins zero again
+                self.full.joint_drawn(*(f.buffers[f"{o}_b"] for o in self.joint_out))
             return evs
         return run
 
@@ -377,10 +378,8 @@ class Safeguarded(Pipeline):
     def describe(self) -> dict:
         d = dict(self.full.describe())
         d["safeguard"] = self.mode == MODE_BLEND
-        if self.guided:
-            d["guided"], d["guide_blend"] = self.guided, self.guide_blend
-        if self.nlm:
-            d["nlm"], d["nlm_scales"] = self.nlm, self._flags["nlm_scales"]
+        d |= {"guided": self.guided, "guide_blend": self.guide_blend} if self.guided else {}
+        d |= {"nlm": self.nlm, "nlm_scales": self._flags["nlm_scales"]} if self.nlm else {}
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True
