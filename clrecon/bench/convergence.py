@@ -81,6 +81,7 @@ from clrecon.core.fsutil import write_atomic
 from clrecon.io import load_image, save_image
 from clrecon.metrics import psnr
 from clrecon.scenes import get_scene, render_reference, render_samples
+from clrecon.scenes.render import SAMPLERS
 
 __all__ = ["ABLATIONS", "ABLATION_SPP", "DEFAULT_AXES", "DEFAULT_SEEDS", "DEFAULT_SIZE",
            "DEFAULT_SPPS", "FLAT_GAIN", "REFERENCE_SEEDS", "UNSWITCHED", "Probe", "Setting",
@@ -174,7 +175,8 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
              size: tuple[int, int] = DEFAULT_SIZE, seeds: int = DEFAULT_SEEDS,
              out_dir: str | Path = "out/converge", ref_spp: int | None = None,
              ablation_spp: int = ABLATION_SPP, device: DeviceSpec | Device = None,
-             status: Status | None = None, keep_images: bool = False) -> dict:
+             status: Status | None = None, keep_images: bool = False,
+             sampler: str = "lattice") -> dict:
     """Run the convergence study; write ``convergence.json``, ``convergence.md`` and the
     plots into ``out_dir`` (see the module docstring).
 
@@ -203,6 +205,10 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
         seed) step with the time so far and an estimate of the time left.
     keep_images : bool
         Keep each cell's image in the cache once its group is summarised.
+    sampler : str
+        How the sample buffers are drawn (:data:`clrecon.scenes.render.SAMPLERS`): the
+        tracer's stratified ``"lattice"`` or independent ``"random"`` samples (its cells are
+        cached apart).
 
     Returns
     -------
@@ -215,13 +221,15 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
     """
     scenes, spps, (w, h), seeds, ablation_spp = _check_options(
         scenes, spps, size, seeds, ablation_spp, ref_spp)
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler: one of {SAMPLERS}, got {sampler!r}")
     dev = get_device(device)
     probe = Probe(dev)
     main = study_settings(methods, settings, probe)
     abl = ablation_settings(methods, probe) if ablation_spp else []
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    cells = out / "cells" / f"{w}x{h}"
+    cells = out / "cells" / (f"{w}x{h}" if sampler == "lattice" else f"{w}x{h}-{sampler}")
     scene_objs = {n: get_scene(n) for n in scenes}
     ref_spps = {n: int(ref_spp or s.reference_spp) for n, s in scene_objs.items()}
     # per spp, the settings measured at it (an ablation's cells share a main setting's key)
@@ -241,7 +249,8 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
                f"cache in {cells}")
     report: dict[str, Any] = {
         "config": {"size": [w, h], "spps": spps, "seeds": seeds,
-                   "sample_seed": "1000 * (seed + 1) + spp", "ablation_spp": ablation_spp,
+                   "sample_seed": "1000 * (seed + 1) + spp", "sampler": sampler,
+                   "ablation_spp": ablation_spp,
                    "device": dev.info.label, "reference_seeds": list(REFERENCE_SEEDS),
                    "mse": "linear radiance, mean over pixels and RGB, against the seed-1 "
                           "reference", "psnr": "clrecon.metrics.psnr (tone mapped)"},
@@ -256,7 +265,7 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
         for spp, group in plan.items():
             results.update(_measure_spp(dev, scene, w, h, spp, seeds, group, ref,
                                         ref_spps[name], cells / name, keep_images, status,
-                                        eta))
+                                        eta, sampler))
             clear_sessions()  # the next spp's buffers are larger
         for s in main:
             for spp in spps:
@@ -314,7 +323,7 @@ def _setting_json(s: Setting) -> dict:
 
 
 def _measure_spp(dev, scene, w, h, spp, seeds, group, ref, ref_spp, cache: Path,
-                 keep_images, status, eta) -> dict[tuple[str, int], dict]:
+                 keep_images, status, eta, sampler="lattice") -> dict[tuple[str, int], dict]:
     """Every setting of ``group`` at ``spp``: from the cache where done, else measured."""
     done: dict[tuple[str, int], dict] = {}
     todo: list[Setting] = []
@@ -336,7 +345,8 @@ def _measure_spp(dev, scene, w, h, spp, seeds, group, ref, ref_spp, cache: Path,
         t = time.perf_counter()
         missing = [s for s in todo if s.key not in errors
                    and not (cache / s.key / f"spp{spp}_seed{sseed}.npy").exists()]
-        buf = render_samples(scene, w, h, spp, seed=sseed, device=dev) if missing else None
+        buf = render_samples(scene, w, h, spp, seed=sseed, device=dev,
+                             sampler=sampler) if missing else None
         for s in missing:
             t1 = time.perf_counter()
             try:

@@ -35,7 +35,10 @@ def _markdown(rep: dict) -> str:
     w, h = cfg["size"]
     lines = [
         f"Device: {cfg['device']}; {w}x{h}; {cfg['seeds']} sample seeds per cell "
-        f"({cfg['sample_seed']}); references on the trusted device (seeds 1 and 2).", "",
+        f"({cfg['sample_seed']}"
+        + ("" if cfg.get("sampler", "lattice") == "lattice" else
+           f"; samples: {cfg['sampler']}, independent")
+        + "); references on the trusted device (seeds 1 and 2).", "",
         "MSE: linear radiance, mean over pixels and RGB, against the seed-1 reference, mean "
         "over seeds; in brackets the bias share, bias² / MSE, with bias² = mean((mean image "
         "- ref)²) - variance / seeds and variance the per-pixel spread across seeds (MSE = "

@@ -39,6 +39,7 @@ from clrecon.core.device import Device, DeviceSpec, get_device
 from clrecon.io import load_image, load_samples, save_image
 from clrecon.metrics import evaluate
 from clrecon.scenes import get_scene, render_reference, render_samples
+from clrecon.scenes.render import SAMPLERS
 
 #: the external baseline: pyoidn quality modes
 OIDN_QUALITIES = ("fast", "high")
@@ -106,7 +107,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
           progress: Progress = None,
           inputs: Sequence[tuple[str, str]] | None = None,
           status: Callable[[str], None] | None = None,
-          settings: Sequence[str] | None = None) -> dict:
+          settings: Sequence[str] | None = None, sampler: str = "lattice") -> dict:
     """Measure the speed/accuracy trade; write ``trade.md``, ``trade.json`` and the pictures.
 
     Parameters
@@ -143,6 +144,9 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         settings = measurements, the rounds, the references to render); then one after
         each reference rendered and each frame measured, with the time so far and an
         estimate of the time left.
+    sampler : str
+        How the built-in scenes' samples are drawn (:data:`clrecon.scenes.render.SAMPLERS`):
+        the tracer's stratified ``"lattice"`` or independent ``"random"`` samples.
 
     Returns
     -------
@@ -156,6 +160,8 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     scenes, inputs, stems = frame_sources(scenes, inputs)
     scene_objs = {n: get_scene(n) for n in scenes}
     spps, variants = _check_options(spps, repeats, methods, oidn, settings)
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler: one of {SAMPLERS}, got {sampler!r}")
     w, h = (int(v) for v in size)
     dev = get_device(device)
     out = Path(out_dir)
@@ -197,7 +203,8 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
         step()
         for spp in spps:
             t = time.perf_counter()
-            buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev).validate()
+            buf = render_samples(scene, w, h, spp, seed=100 + spp, device=dev,
+                                 sampler=sampler).validate()
             step()
             group = measure(name, spp, buf, ref)
             if spp == spps[len(spps) // 2]:
@@ -220,7 +227,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
             status(eta.line(f"{name} ({buf.spp} spp) measured", dt))
         step()
     report = {"device": dev.info.label, "size": [w, h], "spps": spps, "repeats": repeats,
-              "rows": rows}
+              "sampler": sampler, "rows": rows}
     report["verdicts"] = verdicts(rows)
     report["markdown"] = markdown(report)
     write_outputs(out, report, [*scene_objs, *stems])

@@ -36,7 +36,10 @@ def markdown(rep: dict) -> str:
     """``trade.md``: per scene the settings' time, ratio to box, quality and mode (the Pareto
     front in bold), then the verdicts against OIDN."""
     w, h = rep["size"]
-    lines = [f"Device: {rep['device']}; {w}x{h}; time: median of {rep['repeats']} paired rounds "
+    sampler = rep.get("sampler", "lattice")
+    lines = [f"Device: {rep['device']}; {w}x{h}; "
+             + ("" if sampler == "lattice" else f"samples: {sampler} (independent); ")
+             + f"time: median of {rep['repeats']} paired rounds "
              "(device ms from profiling events; OIDN: box pass + denoiser wall time on the "
              "host CPU); x box: median per-round ratio to the box filter; quality against the "
              "converged reference; **bold**: on the (time, PSNR) Pareto front of its scene and "

@@ -22,6 +22,7 @@ from clrecon.cli.knob_flags import add_method_flags
 from clrecon.cli.reports import cmd_converge, cmd_errcheck, cmd_report, cmd_table, cmd_trade
 from clrecon.cli.run import cmd_compare, cmd_psf, cmd_reconstruct, cmd_reference, cmd_scene
 from clrecon.cli.sequences import SAMPLE_FORMATS, add_batch_parser
+from clrecon.scenes.render import SAMPLERS
 
 DESCRIPTION = ("The ``clrecon`` command line: a thin layer that parses, calls the library and "
                "prints.")
@@ -194,10 +195,18 @@ def _trade(sub) -> None:
                     default=None, metavar="LABEL,...",
                     help="only these settings of the methods (labels as in the report, e.g. "
                     "\"layered guided,splat guided\"; box always runs)")
+    _sampler_arg(sp)
     _user_frame_args(sp)
     _output_folder(sp, "out/trade", "output folder (references cached in its references/)")
     device_arg(sp)
     sp.set_defaults(fn=cmd_trade)
+
+
+def _sampler_arg(sp) -> None:
+    sp.add_argument("--sampler", choices=SAMPLERS, default="lattice",
+                    help="how the built-in scenes' samples are drawn: the tracer's stratified "
+                    "lattice (default) or independent uniform samples (random), a renderer "
+                    "without stratification")
 
 
 def _errcheck(sub) -> None:
@@ -232,6 +241,7 @@ def _converge(sub) -> None:
     sp.add_argument("--ref-spp", type=int, default=None, help="default: each scene's")
     sp.add_argument("--ablation-spp", type=int, default=64,
                     help="spp of the ablation of bias sources (0: none)")
+    _sampler_arg(sp)
     sp.add_argument("--keep-images", action="store_true",
                     help="keep every cell's image in the cache (default: removed once its "
                     "seeds are summarised)")

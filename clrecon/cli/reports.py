@@ -77,7 +77,7 @@ def cmd_trade(args) -> int:
                          repeats=args.repeats, oidn=not args.no_oidn, device=args.device,
                          out_dir=args.output, ref_spp=args.ref_spp, progress=bar,
                          inputs=user_frames(args), status=status,
-                         settings=args.settings)["markdown"]
+                         settings=args.settings, sampler=args.sampler)["markdown"]
         finally:
             bar.close()
 
@@ -93,7 +93,7 @@ def cmd_converge(args) -> int:
                         size=args.size, seeds=args.seeds, out_dir=args.output,
                         ref_spp=args.ref_spp, ablation_spp=args.ablation_spp,
                         device=args.device, status=status_printer("converge"),
-                        keep_images=args.keep_images)["markdown"]
+                        keep_images=args.keep_images, sampler=args.sampler)["markdown"]
 
     return _study(args, "convergence.md, convergence.json, <scene>_convergence.png", run)
 

@@ -53,10 +53,28 @@ def _common_args(scene: Scene, width: int, height: int, ctx: cl.Context):
     return cam, (dobjs, dbounds, np.int32(len(scene.objects))), camera, scene.light(), bg
 
 
+#: how render_samples draws a pixel's samples: ``"lattice"``, the tracer's rank-1 lattice
+#: with a random shift per pixel (stratified); ``"random"``, independent uniform samples
+SAMPLERS = ("lattice", "random")
+
+
 def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 0,
-                   device: DeviceSpec | Device = None, progress: Progress = None) -> SampleBuffer:
-    """Trace ``spp`` stochastic samples per pixel; the buffer follows the convention exactly."""
+                   device: DeviceSpec | Device = None, progress: Progress = None,
+                   sampler: str = "lattice") -> SampleBuffer:
+    """Trace ``spp`` stochastic samples per pixel; the buffer follows the convention exactly.
+
+    ``sampler="lattice"`` (default): sample ``i`` of a pixel is point ``i`` of the tracer's
+    rank-1 lattice shifted at random per pixel (``kernels/raytrace.cl``): stratified, as a
+    production renderer's samples are. ``"random"``: every sample independent and uniform in
+    pixel, lens and shutter (a renderer without stratification, whose halves of a pixel's
+    samples are independent, and whose error falls exactly as ``1/spp``): sample ``k`` is
+    the first lattice point of a render of its own seed, whose per-pixel shift is a hash of
+    that seed, so the same tracer serves both."""
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler: one of {SAMPLERS}, got {sampler!r}")
     _check_size(width, height, spp)
+    if sampler == "random":
+        return _render_random(scene, width, height, spp, seed, device, progress)
     dev = _get_device(device)
     ctx, q = dev.context, dev.queue
     cam, objs, camera, light, bg = _common_args(scene, width, height, ctx)
@@ -91,6 +109,27 @@ def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 
             cl.enqueue_copy(q, a, dbufs[k])
     q.finish()
     return SampleBuffer(**host, coc_model=cam.coc_model)
+
+
+def random_seed(seed: int, k: int) -> int:
+    """The seed of sample ``k`` of ``render_samples(..., seed, sampler="random")``: a 32-bit
+    hash of both (the tracer hashes it with the pixel into its lattice shifts)."""
+    h = (int(seed) * 0x9E3779B1 + (int(k) + 1) * 0x85EBCA6B) & 0xFFFFFFFF
+    h ^= h >> 15
+    h = (h * 0x2C1B3C6D) & 0xFFFFFFFF
+    return h ^ (h >> 12)
+
+
+def _render_random(scene, width, height, spp, seed, device, progress) -> SampleBuffer:
+    """``spp`` one-sample renders of seeds :func:`random_seed`, stacked per pixel."""
+    parts = []
+    for k in range(spp):
+        parts.append(render_samples(scene, width, height, 1, seed=random_seed(seed, k),
+                                    device=device).arrays())
+        if progress is not None:
+            progress((k + 1) * width * height, width * height * spp)
+    fields = {name: np.concatenate([p[name] for p in parts], axis=2) for name in parts[0]}
+    return SampleBuffer(**fields, coc_model=scene.camera(width, height).coc_model)
 
 
 def render_reference(scene: Scene, width: int, height: int, spp: int | None = None,

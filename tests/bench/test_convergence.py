@@ -215,6 +215,26 @@ def test_converge_end_to_end_and_resume(device, tmp_path, monkeypatch):
     assert summary.exists()
 
 
+def test_converge_with_the_random_sampler(device, tmp_path):
+    """``sampler="random"``: its cells apart from the lattice's, the sampler in the report,
+    and box's row the NumPy split of the same independent samples."""
+    _trusted()
+    from clrecon.io import load_image
+    from clrecon.scenes import get_scene, render_samples
+
+    rep = _study(device, tmp_path, sampler="random")
+    assert rep["config"]["sampler"] == "random"
+    assert (tmp_path / "cells" / "24x16-random" / "fence").is_dir()
+    assert not (tmp_path / "cells" / "24x16").exists()
+    assert "samples: random" in (tmp_path / "convergence.md").read_text()
+    ref = load_image(tmp_path / "references" / "fence_24x16_16spp_seed1.exr")
+    bufs = [render_samples(get_scene("fence"), 24, 16, 4, seed=cv.sample_seed(i, 4),
+                           device=device, sampler="random") for i in range(2)]
+    want = cv.bias_variance(np.stack([b.color.mean(axis=2) for b in bufs]), ref)
+    box = next(r for r in rep["rows"] if r["setting"] == "box" and r["spp"] == 4)
+    assert box["mse"] == pytest.approx(want["mse"], rel=1e-4)
+
+
 def test_converge_removes_summarised_images(device, tmp_path):
     _trusted()
     _study(device, tmp_path)
@@ -234,6 +254,7 @@ def test_converge_removes_summarised_images(device, tmp_path):
     ({"size": (0, 8)}, "size: must be positive"),
     ({"ablation_spp": -1}, "ablation_spp"),
     ({"ref_spp": 0}, "ref_spp"),
+    ({"sampler": "sobol"}, "sampler: one of"),
 ])
 def test_converge_rejects_bad_options(tmp_path, kw, match):
     """Checked before any device work (no device is opened)."""

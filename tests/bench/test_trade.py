@@ -63,6 +63,18 @@ def test_trade_end_to_end(device, tmp_path):
     assert list((tmp_path / "references").glob("fence_40x24_16spp_seed1.exr"))
 
 
+def test_trade_with_the_random_sampler(device, tmp_path):
+    rep = trade(["fence"], methods=["sweep"], spps=(2,), size=(24, 16), repeats=1,
+                oidn=False, device=device, out_dir=tmp_path, ref_spp=8, sampler="random",
+                settings=["sweep 2-scale"])
+    assert rep["sampler"] == "random"
+    assert json.loads((tmp_path / "trade.json").read_text())["sampler"] == "random"
+    assert "samples: random" in (tmp_path / "trade.md").read_text()
+    with pytest.raises(ValueError, match="sampler: one of"):
+        trade(["fence"], methods=["sweep"], spps=(2,), device=device, out_dir=tmp_path,
+              sampler="sobol")
+
+
 def test_trade_cli_rejects_bad_input(tmp_path, capsys):
     assert main(["trade", "--scenes", "nope", "-o", str(tmp_path)]) == 2
     assert "nope" in capsys.readouterr().err

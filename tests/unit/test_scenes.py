@@ -167,6 +167,32 @@ def test_samples_are_stratified(device):
         assert counts.min() >= 3, "each quarter of the pixel gets its share of 16 samples"
 
 
+def test_random_sampler_draws_independent_samples(device):
+    """``sampler="random"``: deterministic per seed, the convention's ranges, and the spread
+    of independent samples: the variance of a pixel's mean sub-pixel position, lens
+    coordinate and time is that of ``spp`` independent uniform numbers (the lattice's is a
+    fraction of it), and the two halves of a pixel's samples are uncorrelated."""
+    sc, spp = get_scene("empty"), 16
+    a = render_samples(sc, 32, 32, spp, seed=3, device=device, sampler="random")
+    b = render_samples(sc, 32, 32, spp, seed=3, device=device, sampler="random")
+    c = render_samples(sc, 32, 32, spp, seed=4, device=device, sampler="random")
+    lat = render_samples(sc, 32, 32, spp, seed=3, device=device)
+    a.validate()
+    assert a.shape == lat.shape and np.array_equal(a.position, b.position)
+    assert not np.array_equal(a.position, c.position)
+    for name, dims, var1 in (("position", 2, 1 / 12), ("time", 1, 1 / 12)):
+        for buf, lo, hi in ((a, 0.8, 1.25), (lat, 0.0, 0.3)):
+            v = getattr(buf, name).reshape(32, 32, spp, dims)
+            v = v - np.floor(v)  # the position's offset inside its pixel
+            ratio = v.mean(2).var(axis=(0, 1)) / (var1 / spp)
+            assert np.all((ratio > lo) & (ratio < hi)), (name, ratio)
+    u = a.lens[..., 0]
+    ha, hb = u[..., : spp // 2].mean(-1).ravel(), u[..., spp // 2:].mean(-1).ravel()
+    assert abs(np.corrcoef(ha, hb)[0, 1]) < 0.15
+    with pytest.raises(ValueError, match="sampler: one of"):
+        render_samples(sc, 4, 4, 2, device=device, sampler="sobol")
+
+
 def test_references_converge(device):
     sc = get_scene("fence")
     a = render_reference(sc, 48, 48, 256, seed=1, device=device)
