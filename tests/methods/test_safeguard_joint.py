@@ -5,27 +5,18 @@ of each half reprojecting its own view, bit for bit; it stays off where the plan
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 import pytest
 from conftest import assert_close
 from layered_frames import frame
+from pipeline_run import image_and_error
 
 from clrecon.core import pipeline as pipeline_module
 from clrecon.core.errors import DeviceMemoryError
-from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
 
 
 def _images(device, pipe, buf):
-    s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
-    out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
-    pipe(device.queue, s, out).wait()
-    img = np.empty((buf.height, buf.width, 3), np.float32)
-    err = np.empty((buf.height, buf.width), np.float32)
-    cl.enqueue_copy(device.queue, img, out)
-    cl.enqueue_copy(device.queue, err, pipe.buffer("error"))
-    device.queue.finish()
-    return img, err
+    return image_and_error(device, pipe, buf)
 
 
 @pytest.mark.parametrize("knobs", [{}, {"splat": "bilinear"}], ids=["nearest", "bilinear"])

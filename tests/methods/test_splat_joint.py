@@ -9,6 +9,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from layered_frames import frame
+from pipeline_run import image_and_error
 
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
@@ -16,15 +17,7 @@ from clrecon.methods.splat.mip_plan import JOINT_MIN_SPP
 
 
 def _images(device, pipe, buf):
-    s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
-    out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
-    pipe(device.queue, s, out).wait()
-    img = np.empty((buf.height, buf.width, 3), np.float32)
-    err = np.empty((buf.height, buf.width), np.float32)
-    cl.enqueue_copy(device.queue, img, out)
-    cl.enqueue_copy(device.queue, err, pipe.buffer("error"))
-    device.queue.finish()
-    return img, err
+    return image_and_error(device, pipe, buf)
 
 
 def _pair(device, buf, knobs=None):

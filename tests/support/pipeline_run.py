@@ -27,6 +27,20 @@ def run_plan(device, buf, method: str, **knobs):
     return pipe, image
 
 
+def image_and_error(device, pipe, buf):
+    """(image, error) of a safeguarded ``pipe`` run once on ``buf`` (uploaded with its own
+    description)."""
+    s = DeviceSamples.upload(device.queue, buf, info=buf.inspect())
+    out = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, buf.height * buf.width * 12)
+    pipe(device.queue, s, out).wait()
+    img = np.empty((buf.height, buf.width, 3), np.float32)
+    err = np.empty((buf.height, buf.width), np.float32)
+    cl.enqueue_copy(device.queue, img, out)
+    cl.enqueue_copy(device.queue, err, pipe.buffer("error"))
+    device.queue.finish()
+    return img, err
+
+
 def read_buffer(pipe, queue, name: str, shape) -> np.ndarray:
     """The pipeline's temporary ``name`` as float32 of ``shape``."""
     a = np.empty(shape, np.float32)
