@@ -36,7 +36,8 @@ __all__ = ["METHODS", "PIPELINE_KNOBS", "Reconstruction", "clear_sessions", "mak
 def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool = False,
                   safeguard: bool | None = None, estimate_error: bool = False,
                   guided: int = 0, guide_blend: bool = True, nlm: int = 0,
-                  nlm_scales: int = 1, hybrid: bool = False, **knobs) -> Pipeline:
+                  nlm_scales: int = 1, hybrid: bool = False, independent_samples: bool = False,
+                  **knobs) -> Pipeline:
     """Plan ``method`` for frames like ``info`` on ``context``.
 
     ``info`` may describe a family rather than one frame: a renderer that knows its largest
@@ -65,7 +66,12 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
     ``hybrid=True`` (with ``nlm``, not with box or ``safeguard=False``) runs the method's
     safeguarded chain and box's own halves through the same filter, and blends the two per
     pixel by their error estimates (:mod:`clrecon.methods.hybrid`; below 8 spp the chain
-    alone); it always estimates its error.
+    alone); it always estimates its error. ``independent_samples=True`` is the renderer's
+    word that a pixel's samples are independent (no stratification): the safeguard then
+    takes the halves' variances as they are (no measured convergence) and shrinks its
+    untested 7x7 bias mean by its significance (independent samples lost up to 4.3 dB to
+    that mean's noise, stratified ones would lose up to 0.3 dB to the shrinkage at 64 spp:
+    ``docs/measurements/sampler-random-pocl.md``); a pipeline without them ignores it.
     """
     safeguard = check_bool("safeguard", safeguard, none_ok=True)
     estimate_error = check_bool("estimate_error", estimate_error)
@@ -77,6 +83,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
                          f"(a search radius 1..10)")
     guide_blend = check_bool("guide_blend", guide_blend)
     hybrid = check_bool("hybrid", hybrid)
+    independent_samples = check_bool("independent_samples", independent_samples)
     if hybrid:
         for bad, why in ((method == "box", "box's own chain is one of its members; pick a "
                           "method (sweep, layered or splat)"),
@@ -89,7 +96,7 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
             if bad:
                 raise ValueError(f"hybrid: {why}")
         return _hybrid(method, context, info, grow, guided, guide_blend, nlm, nlm_scales,
-                       knobs)
+                       knobs, independent_samples)
     inner = make_method(method, context, info, **knobs)
     if safeguard is None:
         safeguard = (method != "box" or bool(nlm)) and info.spp >= 2
@@ -109,25 +116,28 @@ def make_pipeline(method: str, context: cl.Context, info: FrameInfo, grow: bool 
                              f"the frame has {info.spp}{hint}")
     # a frame without blur is planned as box, with nothing to blend: the method's own
     # pipeline, unless it may grow into a blurred frame (the wrapper re-plans both)
-    if estimate_error or guided or nlm or (safeguard and (grow or inner.plan.name != BOX_PLAN)):
+    sg = estimate_error or guided or nlm or (safeguard and (grow or inner.plan.name != BOX_PLAN))
+    if sg:
         pipe = Safeguarded(context, info, method, knobs, blend=bool(safeguard), full=inner,
                            guided=guided, guide_blend=guide_blend, nlm=nlm,
-                           nlm_scales=nlm_scales)
-    else:
+                           nlm_scales=nlm_scales, independent_samples=independent_samples)
+    else:  # (independent_samples describes the frame: nothing to change without halves)
         pipe = inner
     pipe.grow, pipe.knobs = bool(grow), dict(knobs)
     return pipe
 
 
-def _hybrid(method, context, info, grow, guided, guide_blend, nlm, nlm_scales, knobs):
+def _hybrid(method, context, info, grow, guided, guide_blend, nlm, nlm_scales, knobs,
+            independent_samples=False):
     """The method's safeguarded chain and box's, blended by their error estimates."""
     def chain(at):
         return make_pipeline(method, context, at, guided=guided, guide_blend=guide_blend,
-                             nlm=nlm, nlm_scales=nlm_scales, estimate_error=True, **knobs)
+                             nlm=nlm, nlm_scales=nlm_scales, estimate_error=True,
+                             independent_samples=independent_samples, **knobs)
 
     def boxes(at):
         return make_pipeline("box", context, at, nlm=nlm, nlm_scales=nlm_scales,
-                             estimate_error=True)
+                             estimate_error=True, independent_samples=independent_samples)
 
     pipe = Hybrid(context, info, chain, boxes)
     pipe.grow, pipe.knobs = bool(grow), dict(knobs)
@@ -136,7 +146,7 @@ def _hybrid(method, context, info, grow, guided, guide_blend, nlm, nlm_scales, k
 
 #: knobs every method takes through :func:`make_pipeline` (beside its class's own)
 PIPELINE_KNOBS = ("safeguard", "estimate_error", "guided", "guide_blend", "nlm",
-                  "nlm_scales", "hybrid")
+                  "nlm_scales", "hybrid", "independent_samples")
 
 
 def method_knobs(method: str) -> set[str]:

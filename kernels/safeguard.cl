@@ -35,6 +35,8 @@
  * e) and nine planes of (H, rp) floats, rp a multiple of SG_VW >= W (rows3 = vb3, vm3, e3, ee3;
  * rows7 = e7, vb7, e3max, e7max; then ee7); blend:
  * out (H, W, 3), error (H, W); z7 > 0: the 7x7 bias mean is tested at z7 standard errors;
+ * z7 < 0: it is shrunk by its significance, mu7 max(0, 1 - se7^2 / mu7^2) (independent
+ * samples declared: clrecon/methods/safeguard.py);
  * test3 = 0: the bias term leaves the 3x3 mean out (the guided chain below 8 spp).
  * Vector width: safeguard_rows and safeguard_blend run SG_VW consecutive pixels of a row per
  * work-item as floatN (SG_VW 1, 4, 8 or 16; the host passes 16 for CPUs, 1 otherwise). PoCL
@@ -318,7 +320,7 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
         const vfloat f7 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 7 * rplane)) - emax));
         e7 += f7 * VLOAD(r + 4 * rplane);
         vb7 += f7 * VLOAD(r + 5 * rplane);
-        if (z7 > 0.0f)
+        if (z7 != 0.0f)
             ee7 += (f7 * f7) * VLOAD(r + 8 * rplane);
         if (k >= -1 && k <= 1) {
             const vfloat f3 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 6 * rplane)) - emax));
@@ -352,8 +354,13 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
     /* with z7 > 0 the 7x7 mean too must stand z7 standard errors above zero (the guided
      * refinement's chain: its regression removes the bias coherent over its windows) */
     vfloat mu7 = e7 / n7;
-    if (z7 > 0.0f)
-        mu7 -= z7 * sqrt(fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7);
+    if (z7 != 0.0f) {
+        const vfloat var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;  /* se7^2 */
+        /* z7 < 0: shrunk by its significance (a positive-part James-Stein shrinkage: the
+         * positive noise of a mean near 0 no longer pulls the image toward box) */
+        mu7 = z7 > 0.0f ? mu7 - z7 * sqrt(var7)
+                        : select((vfloat)(0.0f), mu7 - var7 / mu7, mu7 > 0.0f);
+    }
     const vfloat b2 = fmax(0.0f, test3 ? fmax(mu7, mu3 - 2.0f * se3) : mu7);
     const vfloat err_m = b2 + vm3;
     vfloat w = 0.0f, err = vb3;

@@ -40,7 +40,10 @@ The sampler's convergence. Halves measure the variance of a half's mean; ``k`` t
 into the frame's as if the samples were independent (variance ``1/n``). Stratified samples
 converge faster, so ``vb`` and ``vm`` overstate the frame's variances, and the blend keeps a
 biased method where box is already the better. From 16 spp (each half's two quarters hold
->= 4 samples) the frame measures it: ``s = sum S vb / sum dq`` over its pixels, ``dq`` the
+>= 4 samples) the frame measures it (a renderer that declares ``independent_samples``
+gets ``s = 1``, and its untested 7x7 bias mean shrunk by its significance, ``mu7 max(0, 1 -
+se7^2 / mu7^2)``: that mean's positive noise pulled such images toward box):
+``s = sum S vb / sum dq`` over its pixels, ``dq`` the
 quarters' squared difference per unit of their own ``1/n0 + 1/n1`` (both have the samples'
 variance as expectation for independent samples: ``s = 1``), clamped to [0, 1], scales
 ``vb`` and ``vm`` everywhere (``safeguard_ratio``). It assumes the quarter-to-half
@@ -52,18 +55,10 @@ Range: colours reach 1e30: the kernels keep each pixel's statistics in units of 
 binary exponent, rescaled to a window's largest before adding (the error saturates at
 FLT_MAX, colours above ~1e19).
 
-The method's image. A method whose weights do not depend on the sample count
-(``Pipeline.halves_mean``: all three) blends the mean of its halves' images,
-``(ha mA + hb mB) / S``, in place of ``m``: its bias is the method's, its variance that of
-the frame's image (exactly for an estimator linear in the samples), and the frame's run is
-saved. layered's ``shared_steps`` (statistics, partition setup) run once on the frame and
-both halves filter those partitions (measured: the README's safeguard section).
-
-Cost: the method runs on both halves, plus a split copy of the fields (none where its
-passes read each half in place, ``Pipeline.sample_views``) and three cheap passes. A method's
-``joint_steps`` (layered's reproject, splat's bins: one read of the samples) run once on
-the frame for both halves, B's outputs apart (off where B's buffers do not fit).
-``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports).
+The method's image is the mean of its halves' images (``Pipeline.halves_mean``: its bias
+the method's, its variance the frame image's); the steps the frame runs once for both
+halves (``shared_steps``, ``joint_steps``) and the cost: docs/ARCHITECTURE.md's safeguard
+paragraph. ``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports).
 """
 from __future__ import annotations
 
@@ -85,20 +80,20 @@ from clrecon.methods.safeguard_passes import (
     models_covariance,
 )
 
-# the NumPy reference and the blend kernel's modes live in their own module; re-exported
-# here, where the safeguard is (``X as X``: an explicit re-export)
+# the NumPy reference and the blend's modes, re-exported from their module (``X as X``)
 from clrecon.methods.safeguard_reference import MODE_BLEND as MODE_BLEND  # noqa: E402
 from clrecon.methods.safeguard_reference import MODE_BOX as MODE_BOX  # noqa: E402
-from clrecon.methods.safeguard_reference import MODE_METHOD as MODE_METHOD  # noqa: E402
-from clrecon.methods.safeguard_reference import reference as reference  # noqa: E402
-from clrecon.methods.safeguard_reference import (  # noqa: E402
-    reference_of_halves as reference_of_halves,
-)
+from clrecon.methods.safeguard_reference import MODE_METHOD as MODE_METHOD
+from clrecon.methods.safeguard_reference import reference as reference
+from clrecon.methods.safeguard_reference import reference_of_halves as reference_of_halves
 
 #: with the guided refinement the blend tests its 7x7 bias mean at 2 standard errors too (its
 #: regression removes the bias coherent over its windows: an untested 7x7 mean mostly sees
 #: noise there, and its max with 0 pulls the image toward box); below 8 spp: bias_tests
 GUIDED_Z7 = 2.0
+#: ``independent_samples=True``: the untested 7x7 bias mean shrunk by its significance instead
+#: (kernels/safeguard.cl's z7 < 0; docs/measurements/sampler-random-pocl.md)
+SHRINK_Z7 = -1.0
 
 
 class Safeguarded(Pipeline):
@@ -120,9 +115,12 @@ class Safeguarded(Pipeline):
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
                  full: Pipeline | None = None, views: bool = True, joint: bool = True,
-                 guided: int = 0, guide_blend: bool = True, nlm: int = 0, nlm_scales: int = 1):
+                 guided: int = 0, guide_blend: bool = True, nlm: int = 0, nlm_scales: int = 1,
+                 independent_samples: bool = False):
         self._flags = dict(views=views, joint=joint, guided=guided, guide_blend=guide_blend,
-                           nlm=nlm, nlm_scales=nlm_scales)
+                           nlm=nlm, nlm_scales=nlm_scales,
+                           independent_samples=bool(independent_samples))
+        self.independent = bool(independent_samples)
         if info.spp < 2:
             raise ValueError(f"safeguard: needs >= 2 samples per pixel (two independent "
                              f"halves), the frame has {info.spp}")
@@ -234,7 +232,8 @@ class Safeguarded(Pipeline):
                           ("box", "stats") + (("m",) if self.halves_mean else ()),
                           self._stats_step()))
         # from 16 spp the halves' variances are scaled by the sampler's measured convergence
-        self.scaled = measures_convergence(info.spp)
+        # (declared independent samples converge as the halves assume: nothing to measure)
+        self.scaled = measures_convergence(info.spp) and not self.independent
         if self.scaled:
             temps |= {"sg_partial": self.passes.ratio_bytes(info.height), "sg_scale": 4}
             steps.append(Step("safeguard_ratio", ("stats",), ("sg_scale",),
@@ -254,8 +253,8 @@ class Safeguarded(Pipeline):
             if not self.joint:
                 raise
             # half B's buffers of the joint steps do not fit: each half runs them itself
-            self.__init__(context, info, method, knobs, blend, full=self.full, views=views,
-                          joint=False)
+            self.__init__(context, info, method, knobs, blend, full=self.full,
+                          **{**self._flags, "joint": False})
             self._flags["joint"] = joint
 
     # -- steps -------------------------------------------------------------------------------
@@ -365,7 +364,8 @@ class Safeguarded(Pipeline):
             t7, t3 = bias_tests(bool(self.guided), f.spp)
             return self.passes.run_blend(queue, b["stats"], b["rows"], b["box"], m,
                                          b["out"], b["error"], f.width, f.height, self.mode, 1,
-                                         wait_for, GUIDED_Z7 if t7 else 0.0,
+                                         wait_for, GUIDED_Z7 if t7 else
+                                         SHRINK_Z7 if self.independent else 0.0,
                                          b["sg_scale"] if self.scaled else None, t3,
                                          models_covariance(f.spp))
         return run
@@ -385,15 +385,16 @@ class Safeguarded(Pipeline):
         d["estimate_error"] = True
         t7, t3 = bias_tests(bool(self.guided), self.info.spp)  # the frame's spp: the plan's
         d["safeguard_bias_tests"] = {"7x7 at 2 se": t7, "3x3 at 2 se": t3}
-        if self.scaled:
-            d["safeguard_convergence"] = "measured (the halves' variances scaled by it)"
-        if models_covariance(self.info.spp):
-            d["safeguard_covariance"] = "modelled as the method's variance (e = d2 + vm - vb)"
-        if self.box_halves:
-            d["nlm_of"] = "box's own halves (the samples' means)"
-        if self.halves_mean:
-            d["safeguard_image"] = "the mean of the halves' images"
-        if self.joint:
-            d["safeguard_joint"] = list(self.joint)
+        said = {"safeguard_convergence": (self.scaled, "measured (the halves' variances "
+                                          "scaled by it)"),
+                "safeguard_samples": (self.independent, "independent (declared): the halves' "
+                                      "variances as they are; the untested 7x7 bias mean "
+                                      "shrunk by its significance"),
+                "safeguard_covariance": (models_covariance(self.info.spp), "modelled as the "
+                                         "method's variance (e = d2 + vm - vb)"),
+                "nlm_of": (self.box_halves, "box's own halves (the samples' means)"),
+                "safeguard_image": (self.halves_mean, "the mean of the halves' images"),
+                "safeguard_joint": (bool(self.joint), list(self.joint))}
+        d |= {k: v for k, (on, v) in said.items() if on}
         d["plan"] = self.plan.name
         return d

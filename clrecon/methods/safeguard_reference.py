@@ -58,12 +58,14 @@ def variance_scale(color: np.ndarray) -> float:
 
 
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
-              z7: float = 0.0, test3: bool = True, cov: bool | None = None):
+              z7: float = 0.0, test3: bool = True, cov: bool | None = None,
+              vscale: float | None = None):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
-    The halves' variances are scaled by :func:`variance_scale`; ``cov`` (None: from 16
-    spp, as the pipeline: ``safeguard_passes.models_covariance``) as for
+    The halves' variances are scaled by ``vscale`` (None: :func:`variance_scale`, the
+    frame's measured factor; 1: declared independent samples); ``cov`` (None: from 16 spp,
+    as the pipeline: ``safeguard_passes.models_covariance``) as for
     :func:`reference_of_halves`."""
     s = color.shape[2]
     ha, hb = halves(s)
@@ -72,7 +74,8 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
     c = color.astype(np.float64)
     cov = models_covariance(s) if cov is None else bool(cov)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
-                               mode, z7, variance_scale(c), test3, cov)[:2]
+                               mode, z7, variance_scale(c) if vscale is None else vscale,
+                               test3, cov)[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
@@ -83,7 +86,9 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     half estimates, as the guided refinement's blend toward its guide takes) and the
     method's images; float64. ``w``: the blend's weight of the method (None unless
     ``mode`` is the blend). ``z7 > 0``: the 7x7 bias mean must stand ``z7`` standard errors
-    above zero (the guided refinement's chain), as the 3x3 mean must stand 2. ``vscale``:
+    above zero (the guided refinement's chain), as the 3x3 mean must stand 2; ``z7 < 0``: it
+    is shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)`` (independent samples
+    declared). ``vscale``:
     the factor of the halves' variances (:func:`variance_scale`; 1: independent samples).
     ``test3=False``: the bias term leaves the 3x3 test out (``safeguard_passes.bias_tests``).
     ``cov``: the covariance of the method's image and box added back, modelled as ``vm``:
@@ -106,9 +111,12 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     n3 = _window_count(e.shape, 1)
     se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
     mu7 = _window_mean(e, 3)
-    if z7 > 0:
+    if z7 != 0:
         n7 = _window_count(e.shape, 3)
-        mu7 = mu7 - z7 * np.sqrt(np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7)
+        var7 = np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mu7 = mu7 - z7 * np.sqrt(var7) if z7 > 0 else \
+                np.where(mu7 > 0, mu7 - var7 / np.where(mu7 > 0, mu7, 1.0), 0.0)
     b2 = np.maximum(0.0, np.maximum(mu7, mu3 - 2.0 * se3) if test3 else mu7)
     err_m = b2 + _window_mean(vm, 1)
     if mode == MODE_METHOD:

@@ -80,6 +80,36 @@ def test_blend_and_error_match_reference(device, method, spp):
     assert_close(got.error, err, rtol=1e-3, atol=1e-6 * scale ** 2, what=f"{method} error")
 
 
+@pytest.mark.parametrize("spp", [5, 8, 16])
+def test_independent_samples_declared(device, spp):
+    """``independent_samples=True``: from 8 spp the untested 7x7 bias mean shrunk by its
+    significance (the reference's ``z7 < 0``), from 16 spp no measured convergence (the
+    halves' variances as they are: no ``safeguard_ratio``); below 8 spp the tested mean as
+    before, bit for bit; described; a pipeline without halves takes it and changes nothing."""
+    buf = frame(np.random.default_rng(30 + spp), h=13, w=17, s=spp)
+    got = run(buf, method="sweep", device=device, estimate_error=True,
+              independent_samples=True)
+    plain = run(buf, method="sweep", device=device, estimate_error=True)
+    assert got.method["safeguard_samples"].startswith("independent")
+    assert "safeguard_samples" not in plain.method
+    assert ("safeguard_convergence" in plain.method) == (spp >= 16)
+    assert "safeguard_convergence" not in got.method
+    assert not any("safeguard_ratio" in k for k in got.pass_ms)
+    if spp < 8:
+        assert np.array_equal(got.image, plain.image) and np.array_equal(got.error, plain.error)
+        return
+    ha, _ = sg.halves(spp)
+    halves = [_half(buf, slice(0, ha)), _half(buf, slice(ha, None))]
+    ma, mb = (run(h, method="sweep", device=device, safeguard=False).image for h in halves)
+    img, err = sg.reference(buf.color, None, ma, mb, mode=sg.MODE_BLEND, z7=sg.SHRINK_Z7,
+                            vscale=1.0)
+    scale = float(np.abs(img).max())
+    assert_close(got.image, img, rtol=1e-4, atol=1e-5 * scale, what="image")
+    assert_close(got.error, err, rtol=1e-3, atol=1e-6 * scale ** 2, what="error")
+    box = run(buf, method="box", device=device, independent_samples=True)  # no halves
+    assert np.array_equal(box.image, run(buf, method="box", device=device).image)
+
+
 @pytest.mark.parametrize("method", ["sweep", "splat"])
 def test_error_alone_keeps_the_method_image(device, method):
     buf = frame(np.random.default_rng(7), h=11, w=14, s=4)

@@ -72,11 +72,14 @@ CASES += [(vw, w, mode, scale, 2.0, t3) for vw in (1, 8, 16) for w in (5, 37)
           for scale in (1.0, 1e15) for mode, t3 in ((sg.MODE_BLEND, True),
                                                     (sg.MODE_BLEND, False),
                                                     (sg.MODE_METHOD, False))]
+# the 7x7 bias mean shrunk by its significance (independent_samples: z7 < 0)
+CASES += [(vw, w, mode, scale, sg.SHRINK_Z7, True) for vw in (1, 16) for w in (5, 37)
+          for scale in (1.0, 1e-30, 1e15) for mode in (sg.MODE_BLEND, sg.MODE_METHOD)]
 
 
 @pytest.mark.parametrize("vw,w,mode,scale,z7,test3", CASES)
 def test_kernels_match_reference(device, vw, w, mode, scale, z7, test3):
-    rng = np.random.default_rng(w + 100 * vw + 7 * mode + int(1000 * z7) + 13 * test3)
+    rng = np.random.default_rng(w + 100 * vw + 7 * mode + int(1000 * abs(z7)) + 13 * test3)
     h, s = 9, 5
     color = rng.random((h, w, s, 3)) * rng.choice([0.5, 4.0], (h, w, 1, 1)) * scale
     ma, mb = (color.mean(2) + 0.2 * scale * rng.random((h, w, 3)) for _ in range(2))
