@@ -67,9 +67,12 @@ def test_fixed_point_plan_has_no_joint_step(device, monkeypatch):
         pipe.full.reproject.joint_halves(device.queue, None, 2, None, None, None, None, None)
 
 
-def test_joint_falls_back_where_half_b_grids_do_not_fit(device, monkeypatch):
+@pytest.mark.parametrize("chain", [{}, {"guided": 2, "nlm": 3, "nlm_scales": 2,
+                                    "independent_samples": True}], ids=["plain", "chain"])
+def test_joint_falls_back_where_half_b_grids_do_not_fit(device, monkeypatch, chain):
     """A device whose memory holds the plan but not half B's second grids: each half then
-    reprojects itself, and the image is the same."""
+    reprojects itself, and the image is the same (the chain's knobs kept: the fallback
+    re-plans with every one of them)."""
     real = pipeline_module.check_memory
 
     def tight(dev, plan, info):
@@ -77,11 +80,13 @@ def test_joint_falls_back_where_half_b_grids_do_not_fit(device, monkeypatch):
             raise DeviceMemoryError("the plan needs more than the device's memory (test)")
         real(dev, plan, info)
 
-    buf = frame(np.random.default_rng(8), h=14, w=17, s=4)
-    want = _images(device, sg.Safeguarded(device.context, buf.inspect(), "layered", {}), buf)
+    buf = frame(np.random.default_rng(8), h=14, w=17, s=8 if chain else 4)
+    want = _images(device, sg.Safeguarded(device.context, buf.inspect(), "layered", {},
+                                          **chain), buf)
     monkeypatch.setattr(pipeline_module, "check_memory", tight)
-    pipe = sg.Safeguarded(device.context, buf.inspect(), "layered", {})
+    pipe = sg.Safeguarded(device.context, buf.inspect(), "layered", {}, **chain)
     assert pipe.joint == () and "grids_b" not in pipe.plan.temporaries
+    assert all(pipe._flags[k] == v for k, v in chain.items())
     assert pipe._flags["joint"] is True  # a larger frame after regrow tries again
     for g, w in zip(_images(device, pipe, buf), want):
         assert np.array_equal(g, w)
