@@ -81,7 +81,7 @@ from clrecon.core.fsutil import write_atomic
 from clrecon.io import load_image, save_image
 from clrecon.metrics import psnr
 from clrecon.scenes import get_scene, render_reference, render_samples
-from clrecon.scenes.render import SAMPLERS
+from clrecon.scenes.render import check_sampler
 
 __all__ = ["ABLATIONS", "ABLATION_SPP", "DEFAULT_AXES", "DEFAULT_SEEDS", "DEFAULT_SIZE",
            "DEFAULT_SPPS", "FLAT_GAIN", "REFERENCE_SEEDS", "UNSWITCHED", "Probe", "Setting",
@@ -221,8 +221,7 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
     """
     scenes, spps, (w, h), seeds, ablation_spp = _check_options(
         scenes, spps, size, seeds, ablation_spp, ref_spp)
-    if sampler not in SAMPLERS:
-        raise ValueError(f"sampler: one of {SAMPLERS}, got {sampler!r}")
+    check_sampler(sampler)  # before any device work
     dev = get_device(device)
     probe = Probe(dev)
     main = study_settings(methods, settings, probe)

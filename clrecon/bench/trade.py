@@ -39,7 +39,7 @@ from clrecon.core.device import Device, DeviceSpec, get_device
 from clrecon.io import load_image, load_samples, save_image
 from clrecon.metrics import evaluate
 from clrecon.scenes import get_scene, render_reference, render_samples
-from clrecon.scenes.render import SAMPLERS
+from clrecon.scenes.render import check_sampler
 
 #: the external baseline: pyoidn quality modes
 OIDN_QUALITIES = ("fast", "high")
@@ -160,8 +160,7 @@ def trade(scenes: Sequence[str] | None = None, methods: Sequence[str] | None = N
     scenes, inputs, stems = frame_sources(scenes, inputs)
     scene_objs = {n: get_scene(n) for n in scenes}
     spps, variants = _check_options(spps, repeats, methods, oidn, settings)
-    if sampler not in SAMPLERS:
-        raise ValueError(f"sampler: one of {SAMPLERS}, got {sampler!r}")
+    check_sampler(sampler)  # before any device work
     w, h = (int(v) for v in size)
     dev = get_device(device)
     out = Path(out_dir)

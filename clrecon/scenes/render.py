@@ -58,6 +58,13 @@ def _common_args(scene: Scene, width: int, height: int, ctx: cl.Context):
 SAMPLERS = ("lattice", "random")
 
 
+def check_sampler(sampler: str) -> str:
+    """``sampler`` if it is one of :data:`SAMPLERS`, else a ``ValueError``."""
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler: one of {SAMPLERS}, got {sampler!r}")
+    return sampler
+
+
 def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 0,
                    device: DeviceSpec | Device = None, progress: Progress = None,
                    sampler: str = "lattice") -> SampleBuffer:
@@ -70,8 +77,7 @@ def render_samples(scene: Scene, width: int, height: int, spp: int, seed: int = 
     samples are independent, and whose error falls exactly as ``1/spp``): sample ``k`` is
     the first lattice point of a render of its own seed, whose per-pixel shift is a hash of
     that seed, so the same tracer serves both."""
-    if sampler not in SAMPLERS:
-        raise ValueError(f"sampler: one of {SAMPLERS}, got {sampler!r}")
+    check_sampler(sampler)
     _check_size(width, height, spp)
     if sampler == "random":
         return _render_random(scene, width, height, spp, seed, device, progress)

@@ -8,15 +8,11 @@ import numpy as np
 import pytest
 from conftest import assert_close
 from layered_frames import frame
-from pipeline_run import image_and_error
+from pipeline_run import image_and_error as _images
 
 from clrecon.core import pipeline as pipeline_module
 from clrecon.core.errors import DeviceMemoryError
 from clrecon.methods import safeguard as sg
-
-
-def _images(device, pipe, buf):
-    return image_and_error(device, pipe, buf)
 
 
 @pytest.mark.parametrize("knobs", [{}, {"splat": "bilinear"}], ids=["nearest", "bilinear"])

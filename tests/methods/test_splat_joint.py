@@ -9,15 +9,11 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from layered_frames import frame
-from pipeline_run import image_and_error
+from pipeline_run import image_and_error as _images
 
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
 from clrecon.methods.splat.mip_plan import JOINT_MIN_SPP
-
-
-def _images(device, pipe, buf):
-    return image_and_error(device, pipe, buf)
 
 
 def _pair(device, buf, knobs=None):

@@ -160,7 +160,7 @@ class MipSplat:
         self.draw_local = draw_local(context)
         self.levels = cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                                 hostbuf=geometry.levels)
-        self._joint: dict[int, cl.Kernel] = {}
+        self._joint_kernel: cl.Kernel | None = None  # bin_joint's, built on first use
         self.events: list[tuple[str, cl.Event]] = []
 
     def bin_joint(self, queue, samples: DeviceSamples, inv_far: float, layer_scale: float,
@@ -178,11 +178,11 @@ class MipSplat:
                              f"spp ({self.spp}); got {samples.spp} spp"
                              + (", a view" if samples.is_view else "")
                              + f", scatter {self.scatter!r}")
-        ha = self.spp // 2
-        if ha not in self._joint:
-            self._joint[ha] = get_kernel(queue.context, "splat_mip_bin", "splat_mip_bin_tiles",
-                                         {**self._defines, "JOINT_HA": ha})
-        return self._bin_tiles(queue, self._joint[ha], samples, inv_far, layer_scale, bins,
+        if self._joint_kernel is None:
+            self._joint_kernel = get_kernel(queue.context, "splat_mip_bin",
+                                            "splat_mip_bin_tiles",
+                                            {**self._defines, "JOINT_HA": self.spp // 2})
+        return self._bin_tiles(queue, self._joint_kernel, samples, inv_far, layer_scale, bins,
                                flags, wait_for, (bins_b, flags_b))
 
     def bin(self, queue, samples: DeviceSamples, inv_far: float, layer_scale: float,

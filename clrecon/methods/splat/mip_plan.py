@@ -22,6 +22,11 @@ log = logging.getLogger("clrecon.methods.splat")
 JOINT_MIN_SPP = 16
 
 
+def _bins_key(bufs) -> tuple[int, ...]:
+    """What identifies a set of bins and flags buffers in the plan's record of clean ones."""
+    return tuple(b.int_ptr for b in bufs)
+
+
 class MipPlan:
     """The mip plan's construction; expects the attributes SplatPipeline's constructor sets
     (``deterministic``, ``psf``, ``layers``, ``mip_radius``, ``has_motion``, ``_own``)."""
@@ -61,7 +66,7 @@ class MipPlan:
         self._clean_bins: set[tuple[int, ...]] = set()
 
         def key(f):
-            return tuple(f.buffers[k].int_ptr for k in bin_bufs)
+            return _bins_key(f.buffers[k] for k in bin_bufs)
 
         def clear(queue, f, wait):
             return [("clear", zero_buffer(queue, f.buffers["mip_image"], temps["mip_image"],
@@ -119,7 +124,7 @@ class MipPlan:
         """Zero the bins and flags ``bufs``; clean ones (the draw zeroes what it consumes)
         get a 16-byte fill of the zeros they hold: every frame enqueues the same events (what
         the benches pair up run to run)."""
-        key = tuple(b.int_ptr for b in bufs)
+        key = _bins_key(bufs)
         clean = key in self._clean_bins
         self._clean_bins.discard(key)
         sizes = (self.geometry.bin_bytes, self.geometry.pixels)
@@ -155,4 +160,4 @@ class MipPlan:
         """The safeguard's word that both halves' draws are enqueued after
         :meth:`joint_halves`: their bins are zero again (each draw zeroes what it consumes)."""
         for bufs in ((self.buffer("mip_bins"), self.buffer("mip_flags")), (bins_b, flags_b)):
-            self._clean_bins.add(tuple(b.int_ptr for b in bufs))
+            self._clean_bins.add(_bins_key(bufs))
