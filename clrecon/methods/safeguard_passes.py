@@ -26,6 +26,9 @@ MIN_QUARTER = 4
 #: the fewest samples a half holds for the blend's bias term to take its windows' means as
 #: they come (:func:`bias_tests`): from 8 spp, the count :data:`MIN_QUARTER` asks of a quarter
 MIN_TEST_HALF = 4
+#: the fewest samples a half holds for the guided chain's blend to keep its 3x3 test
+#: (:func:`bias_tests`): from 32 spp
+CHAIN_TEST3_HALF = 16
 #: the row segments' planes: vb3, vm3, e3, ee3 (3 wide), e7, vb7, e3max, e7max, ee7 (7 wide)
 ROW_PLANES = 9
 #: padding columns on each side of the statistics' planes (the 7-wide window's reach)
@@ -74,17 +77,23 @@ def bias_tests(guided: bool, spp: int) -> tuple[bool, bool]:
     where that stands 2 standard errors above zero (a bias along a thin edge).
 
     From halves of :data:`MIN_TEST_HALF` samples (8 spp) a method's own halves take the
-    7x7 mean untested and the guided chain's test it; both keep the 3x3 test. Below, the
-    windows' means of 2-3-sample halves are mostly noise, whose positive part pulls the
-    image toward a box 10-20 dB worse: every method tests its 7x7 mean, and the guided
-    chain leaves the 3x3 test out. Measured at 4 spp on the six blurred built-in scenes
-    (``docs/measurements/safeguard-lowspp-pocl.md``, ``chain-safeguard-pocl.md``): the
-    defaults +0.01 to +2.6 dB in 33 of 36 cells at 256x256 and 512x512 (spheres: layered
-    -0.16 and -0.20, splat -0.08 at 256x256), the guided chain +0.15 to +0.59 dB on every
-    scene; at 8 spp the same tests cost on fence and spheres, so from 8 spp nothing
-    changes."""
-    low = min(halves(int(spp))) < MIN_TEST_HALF
-    return bool(guided) or low, not (guided and low)
+    7x7 mean untested; below, the windows' means of 2-3-sample halves are mostly noise,
+    whose positive part pulls the image toward a box 10-20 dB worse, so every method tests
+    its 7x7 mean (``docs/measurements/safeguard-lowspp-pocl.md``: the defaults +0.01 to
+    +2.6 dB in 33 of 36 cells at 4 spp, 256x256 and 512x512). Every method's own blend
+    keeps the 3x3 test.
+
+    The guided chain always tests its 7x7 mean, and keeps the 3x3 test only from halves of
+    :data:`CHAIN_TEST3_HALF` samples (32 spp). Its image is 10-20 dB better than box's
+    below that, so a 3x3 window (27 noisy terms, its standard error from the same 9
+    pixels) that passes by chance pulls a pixel toward a box far worse than the bias it
+    removes; the 7x7 test alone (``docs/measurements/chain-safeguard-pocl.md`` section 6,
+    512x512, six scenes, both samplers) gained at 8 and 16 spp in 22 of 24 cells (-0.01 to
+    +0.92 dB, the rest +0.00 to -0.01) and was mixed at 32 spp (-0.16 to +0.20); at 64 spp
+    with the lattice the 3x3 test earns its keep (fence +0.25, spheres +0.37, fast_motion
+    +0.48 with it). Below 8 spp it was already left out."""
+    h = min(halves(int(spp)))
+    return bool(guided) or h < MIN_TEST_HALF, not guided or h >= CHAIN_TEST3_HALF
 
 
 def vector_width(context: cl.Context) -> int:

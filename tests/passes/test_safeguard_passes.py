@@ -183,15 +183,14 @@ def test_below_16_spp_nothing_is_measured():
 
 def test_bias_tests_rule():
     """From halves of MIN_TEST_HALF samples (8 spp: 4 and 4; 7 spp's are 3 and 4) a method's
-    own halves test neither window beyond the 3x3's 2 standard errors and the guided chain's
-    test the 7x7 mean too; below, every blend tests the 7x7 mean and the guided chain leaves
-    the 3x3 test out."""
-    from clrecon.methods.safeguard_passes import MIN_TEST_HALF, bias_tests
-    assert MIN_TEST_HALF == 4
+    own halves test neither window beyond the 3x3's 2 standard errors; below, they test the
+    7x7 mean too. The guided chain always tests the 7x7 mean and keeps the 3x3 test from
+    halves of CHAIN_TEST3_HALF samples (32 spp; 31 spp's are 15 and 16)."""
+    from clrecon.methods.safeguard_passes import CHAIN_TEST3_HALF, MIN_TEST_HALF, bias_tests
+    assert (MIN_TEST_HALF, CHAIN_TEST3_HALF) == (4, 16)
     for s in range(2, 70):
-        low = s < 8
-        assert bias_tests(False, s) == (low, True), s
-        assert bias_tests(True, s) == (True, not low), s
+        assert bias_tests(False, s) == (s < 8, True), s
+        assert bias_tests(True, s) == (True, s >= 32), s
 
 
 @pytest.mark.parametrize("s", [5, 16])
