@@ -52,7 +52,7 @@ from clrecon.methods.safeguard_reference import (
 )
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
-from clrecon.scenes.render import render_reference, render_samples
+from clrecon.scenes.render import SAMPLERS, render_reference, render_samples
 
 CHAIN = {"guided": 2, "nlm": 3, "nlm_scales": 4}
 #: the chain settings of --variances (label, Safeguarded's flags)
@@ -82,12 +82,13 @@ def _var_across(xs: np.ndarray) -> np.ndarray:
     return ((xs - xs.mean(0)) ** 2).mean(-1).sum(0) / (len(xs) - 1)
 
 
-def variances(dev, scenes, size: int, spp: int, seeds: int) -> list[str]:
+def variances(dev, scenes, size: int, spp: int, seeds: int,
+              sampler: str = "lattice") -> list[str]:
     lines = ["| scene | setting | var(m) true | estimate | true / estimate | "
              "var(box) true / estimate |", "|---|---|---|---|---|---|"]
     for name in scenes:
         bufs = [render_samples(get_scene(name), size, size, spp, seed=5000 + 17 * i,
-                               device=dev) for i in range(seeds)]
+                               device=dev, sampler=sampler) for i in range(seeds)]
         for label, flags in SETTINGS:
             ms, boxes, vms, vbs = [], [], [], []
             for buf in bufs:
@@ -113,7 +114,7 @@ def _blend(a, b, ha, hb, ma, mb, vscale: float, with_3x3: bool):
     return img, w
 
 
-def blend(dev, scenes, size: int, spps) -> list[str]:
+def blend(dev, scenes, size: int, spps, sampler: str = "lattice") -> list[str]:
     cols = ("box", "m alone", "3x3 test", "no 3x3", "w other seed", "oracle")
     lines = ["| scene | spp | " + " | ".join(cols) + " | mean w |",
              "|---|---|" + "---|" * (len(cols) + 1)]
@@ -122,7 +123,8 @@ def blend(dev, scenes, size: int, spps) -> list[str]:
         for spp in spps:
             frames = []
             for seed in (100 + spp, 7777 + spp):
-                buf = render_samples(get_scene(name), size, size, spp, seed=seed, device=dev)
+                buf = render_samples(get_scene(name), size, size, spp, seed=seed, device=dev,
+                                     sampler=sampler)
                 got, ma, mb, a, b, ha, hb = run_halves(dev, buf, CHAIN)
                 vs = variance_scale(buf.color)
                 frames.append((got, ma, mb, a, b, ha, hb, vs))
@@ -145,13 +147,14 @@ def blend(dev, scenes, size: int, spps) -> list[str]:
     return lines
 
 
-def calibration(dev, scenes, size: int, spps) -> list[str]:
+def calibration(dev, scenes, size: int, spps, sampler: str = "lattice") -> list[str]:
     lines = ["| scene | spp | setting | mean estimate / true MSE | Spearman (8x8 tiles) |",
              "|---|---|---|---|---|"]
     for name in scenes:
         ref = render_reference(get_scene(name), size, size).astype(np.float64)
         for spp in spps:
-            buf = render_samples(get_scene(name), size, size, spp, seed=100 + spp, device=dev)
+            buf = render_samples(get_scene(name), size, size, spp, seed=100 + spp, device=dev,
+                                 sampler=sampler)
             for label, flags in SETTINGS:
                 r = clrecon.run(buf, "splat", device=dev, estimate_error=True, **flags)
                 true = _lum2(r.image.astype(np.float64) - ref)
@@ -170,6 +173,9 @@ def main(argv=None) -> None:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--spp", default="4", help="comma-separated; --variances takes the first")
     ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--sampler", choices=SAMPLERS, default="lattice",
+                    help="how the samples are drawn (render_samples): the tracer's lattice or "
+                         "independent samples")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     if not (args.variances or args.blend or args.calibration):
@@ -181,16 +187,18 @@ def main(argv=None) -> None:
     spps = [int(x) for x in args.spp.split(",")]
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [f"`python tools/chain_halves_study.py {' '.join(argv or [])}`".replace("  ", " "),
-             f"on {dev.info.label}, {stamp}; chain {json.dumps(CHAIN)}.", ""]
+             f"on {dev.info.label}, {stamp}; chain {json.dumps(CHAIN)}; {args.sampler} samples.",
+             ""]
     if args.variances:
         lines += [f"### Variances ({args.size}x{args.size}, {spps[0]} spp, {args.seeds} "
-                  "seeds)", ""] + variances(dev, scenes, args.size, spps[0], args.seeds) + [""]
+                  "seeds)", ""] + variances(dev, scenes, args.size, spps[0], args.seeds,
+                                               args.sampler) + [""]
     if args.blend:
         lines += [f"### The final blend ({args.size}x{args.size}, PSNR dB)", ""] + blend(
-            dev, scenes, args.size, spps) + [""]
+            dev, scenes, args.size, spps, args.sampler) + [""]
     if args.calibration:
         lines += [f"### The error estimate ({args.size}x{args.size})", ""] + calibration(
-            dev, scenes, args.size, spps) + [""]
+            dev, scenes, args.size, spps, args.sampler) + [""]
     emit_page(lines, args.out)
 
 

@@ -54,8 +54,10 @@ def _cells(lines):
     return [c.strip() for row in lines[2:] for c in row.strip("|").split("|")]
 
 
-def test_blend_end_to_end(device, cheap_reference):
-    lines = ch.blend(device, ["fence"], 24, [4])
+@pytest.mark.parametrize("spp, sampler", [(4, "lattice"), (8, "random")])
+def test_blend_end_to_end(device, cheap_reference, spp, sampler):
+    """(The study raises where its host blend of the library's tests is not the device's.)"""
+    lines = ch.blend(device, ["fence"], 24, [spp], sampler)
     assert len(lines) == 3
     nums = [float(c) for c in _cells(lines)[2:]]
     assert all(math.isfinite(v) for v in nums) and 0.0 <= nums[-1] <= 1.0
