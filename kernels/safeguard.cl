@@ -37,7 +37,8 @@
  * out (H, W, 3), error (H, W); z7 > 0: the 7x7 bias mean is tested at z7 standard errors;
  * z7 < 0: it is shrunk by its significance, mu7 max(0, 1 - se7^2 / mu7^2) (independent
  * samples declared: clrecon/methods/safeguard.py);
- * test3 = 0: the bias term leaves the 3x3 mean out (the guided chain below 8 spp).
+ * test3 = 0: the bias term leaves the 3x3 mean out (the guided chain below 32 spp); fdr = 1:
+ * z7 is zfdr[0] (1 float: kernels/safeguard_fdr.cl's threshold), else zfdr is not read.
  * Vector width: safeguard_rows and safeguard_blend run SG_VW consecutive pixels of a row per
  * work-item as floatN (SG_VW 1, 4, 8 or 16; the host passes 16 for CPUs, 1 otherwise). PoCL
  * 3.1 vectorises a kernel across work-items only where its body holds no vector-typed value
@@ -296,8 +297,12 @@ __kernel void safeguard_rows(__global const float *stats, __global float *rows, 
 __kernel void safeguard_blend(__global const float *rows, __global const float *box,
                               __global const float *m, __global float *out,
                               __global float *error, int width, int height, int rp, int mode,
-                              int write_error, float z7, int test3)
+                              int write_error, float z7, int test3, int fdr,
+                              __global const float *zfdr)
 {
+    /* fdr = 1: the 7x7 test's z is the frame's (kernels/safeguard_fdr.cl) */
+    if (fdr)
+        z7 = zfdr[0];
     const int x0 = get_global_id(0) * SG_VW, y = get_global_id(1);
     if (x0 >= width || y >= height)
         return;

@@ -11,9 +11,11 @@ of the trade), each run on the device, the rest in float64 on the host:
   halves of stratified samples give a little below 1 (box's own row).
 * ``--blend``: on one frame per scene and spp (``seed = 100 + spp``, as ``clrecon trade``),
   PSNR of box, of ``m`` alone (no safeguard), of the final blend with and without its 3x3
-  test (``3x3 test``, ``no 3x3``: the chain's 7x7 test at 2 standard errors alone; the
-  library runs the first from 8 spp and the second below, ``bias_tests``; the host's blend
-  is checked against the device's image), of one estimator change and of one bound:
+  test (``3x3 test``, ``no 3x3``: the chain's 7x7 test alone, at the frame's z for the
+  false discovery rate ``FDR_Q``; the library runs the first from 32 spp and the second
+  below, ``bias_tests``; the host's blend is checked against the device's image; before
+  2026-12-07 night the 7x7 test was at 2 standard errors), of one estimator change and of
+  one bound:
   ``w other seed``: the ``3x3 test`` weights from an independent frame applied to this one
   (what the dependence between a frame's weights and its own box noise costs);
   ``oracle``: weights from the true squared errors of ``m`` and box, each averaged over the
@@ -107,10 +109,11 @@ def variances(dev, scenes, size: int, spp: int, seeds: int,
 
 
 def _blend(a, b, ha, hb, ma, mb, vscale: float, with_3x3: bool):
-    """The chain's blend (its 7x7 test at 2 standard errors) with or without its 3x3 test
-    (the safeguard's reference, ``test3``): its image and its weights."""
+    """The chain's blend (its 7x7 test at the frame's z for false discovery rate
+    ``safeguard.FDR_Q``) with or without its 3x3 test (the safeguard's reference,
+    ``test3``): its image and its weights."""
     img, _, w = reference_of_halves(a, b, ha, hb, None, ma, mb, sg.MODE_BLEND, sg.GUIDED_Z7,
-                                    vscale, with_3x3, models_covariance(ha + hb))
+                                    vscale, with_3x3, models_covariance(ha + hb), sg.FDR_Q)
     return img, w
 
 

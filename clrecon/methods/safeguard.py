@@ -14,43 +14,41 @@ the halves'. With ``k = ha hb / S^2`` (``1/4`` for equal halves), per pixel, in 
 radiance averaged over RGB:
 
 * ``vb = k |boxA - boxB|^2`` estimates box's variance (its whole error: box is unbiased).
-  Independent halves, not the samples' spread: a renderer's samples are usually
-  stratified, and the spread of stratified samples overstates the variance of their mean
-  many times over (100x at 64 spp on the built-in scenes);
-* ``vm = k |mA - mB|^2`` estimates the method's variance (the halves' images differ by
-  noise alone);
-* ``d2 = |m - box|^2`` has expectation ``bias^2 + var(m - box)``, so
-  ``e = d2 - vm - vb`` estimates the method's squared bias (from 16 spp ``d2 + vm - vb``: the
-  covariance of ``m`` and box modelled, ``safeguard_passes.models_covariance``); it is
-  averaged over a 7x7 window
-  (a bias is coherent in space, noise is not), and over 3x3 where that mean stands two
-  standard errors above zero (a bias along a thin edge, which the wider window dilutes; the
-  noise of the 3x3 mean alone would otherwise pull the image toward box at low spp):
-  ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))`` (below 8 spp and with the guided
-  refinement the windows are tested differently: ``bias_tests``);
+  Independent halves, not the samples' spread: a renderer's samples are usually stratified,
+  and the spread of stratified samples overstates the variance of their mean many times
+  over (100x at 64 spp on the built-in scenes);
+* ``vm = k |mA - mB|^2`` estimates the method's variance (the halves' images differ by noise
+  alone);
+* ``d2 = |m - box|^2`` has expectation ``bias^2 + var(m - box)``, so ``e = d2 - vm - vb``
+  estimates the method's squared bias (from 16 spp ``d2 + vm - vb``: the covariance of
+  ``m`` and box modelled, ``safeguard_passes.models_covariance``); it is averaged over a
+  7x7 window (a bias is coherent in space, noise is not), and over 3x3 where that mean
+  stands two standard errors above zero (a bias along a thin edge, which the wider window
+  dilutes; the noise of the 3x3 mean alone would otherwise pull the image toward box at
+  low spp): ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))`` (below 8 spp and with the
+  guided refinement the windows are tested differently: ``bias_tests``);
 * the method's error is ``err_m = b2 + mean3(vm)``; the weight that minimises the expected
-  squared error of ``box + w (m - box)`` when the two errors are independent is
-  ``w = vb / (vb + err_m)``, and the blend's error ``w^2 err_m + (1 - w)^2 vb``. Here ``vb``
-  is ``max(mean3(vb), mean7(vb))`` (box's own error estimate stays the unbiased
+  squared error of ``box + w (m - box)`` when the two errors are independent is ``w = vb /
+  (vb + err_m)``, and the blend's error ``w^2 err_m + (1 - w)^2 vb``. Here ``vb`` is
+  ``max(mean3(vb), mean7(vb))`` (box's own error estimate stays the unbiased
   ``mean3(vb)``): a pixel whose own samples all missed a rare contributor (a blurred
   highlight) has halves that agree and a variance near 0, while its neighbours' samples
   show the spread (without the 7x7 term the blend lost 2 dB on ``bokeh`` at 8 spp).
 
 The sampler's convergence. Halves measure the variance of a half's mean; ``k`` turns it
 into the frame's as if the samples were independent (variance ``1/n``). Stratified samples
-converge faster, so ``vb`` and ``vm`` overstate the frame's variances, and the blend keeps a
-biased method where box is already the better. From 16 spp (each half's two quarters hold
->= 4 samples) the frame measures it (a renderer that declares ``independent_samples``
-gets ``s = 1``, and its untested 7x7 bias mean shrunk by its significance, ``mu7 max(0, 1 -
-se7^2 / mu7^2)``: that mean's positive noise pulled such images toward box):
-``s = sum S vb / sum dq`` over its pixels, ``dq`` the
-quarters' squared difference per unit of their own ``1/n0 + 1/n1`` (both have the samples'
-variance as expectation for independent samples: ``s = 1``), clamped to [0, 1], scales
-``vb`` and ``vm`` everywhere (``safeguard_ratio``). It assumes the quarter-to-half
-convergence holds from half to frame; below 16 spp the quarters are too few to say.
+converge faster, so ``vb`` and ``vm`` overstate the frame's variances, and the blend keeps
+a biased method where box is already the better. From 16 spp (each half's two quarters hold
+>= 4 samples) the frame measures it (declared ``independent_samples``: ``s = 1``, and the
+untested 7x7 bias mean shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)``): ``s
+= sum S vb / sum dq`` over its pixels, ``dq`` the quarters' squared difference per unit of
+their own ``1/n0 + 1/n1`` (both have the samples' variance as expectation for independent
+samples: ``s = 1``), clamped to [0, 1], scales ``vb`` and ``vm`` everywhere
+(``safeguard_ratio``). It assumes the quarter-to-half convergence holds from half to frame;
+below 16 spp the quarters are too few to say.
 
-As samples grow, ``vb`` falls like box's error while a method's bias does not: ``w`` goes to
-0 and the image to box's (consistent); where the method is unbiased ``w`` stays near 1.
+As samples grow, ``vb`` falls like box's error while a method's bias does not: ``w`` goes
+to 0 and the image to box's (consistent); where the method is unbiased ``w`` stays near 1.
 Range: colours reach 1e30: the kernels keep each pixel's statistics in units of its own
 binary exponent, rescaled to a window's largest before adding (the error saturates at
 FLT_MAX, colours above ~1e19).
@@ -73,6 +71,7 @@ from clrecon.core.samples import FIELDS
 from clrecon.methods import nlm as nl
 from clrecon.methods.guided import GuidedPasses, check_radius
 from clrecon.methods.safeguard_passes import (
+    FDR_Q,
     SafeguardPasses,
     bias_tests,
     halves,
@@ -87,9 +86,7 @@ from clrecon.methods.safeguard_reference import MODE_METHOD as MODE_METHOD
 from clrecon.methods.safeguard_reference import reference as reference
 from clrecon.methods.safeguard_reference import reference_of_halves as reference_of_halves
 
-#: with the guided refinement the blend tests its 7x7 bias mean at 2 standard errors too (its
-#: regression removes the bias coherent over its windows: an untested 7x7 mean mostly sees
-#: noise there, and its max with 0 pulls the image toward box); below 8 spp: bias_tests
+#: below 8 spp every blend tests its 7x7 bias mean at 2 standard errors (bias_tests)
 GUIDED_Z7 = 2.0
 #: ``independent_samples=True``: the untested 7x7 bias mean shrunk by its significance instead
 #: (kernels/safeguard.cl's z7 < 0; docs/measurements/sampler-random-pocl.md)
@@ -238,6 +235,8 @@ class Safeguarded(Pipeline):
             temps |= {"sg_partial": self.passes.ratio_bytes(info.height), "sg_scale": 4}
             steps.append(Step("safeguard_ratio", ("stats",), ("sg_scale",),
                               self._ratio_step()))
+        if self.guided:  # the 7x7 test at a false discovery rate: the frame's histogram
+            temps |= {"sg_fdr_hist": self.passes.fdr_bytes(info.height), "sg_fdr_z": 4}
         steps.append(Step("safeguard_blend", ("stats", "box") + (() if is_box else ("m",))
                           + (("sg_scale",) if self.scaled else ()), ("out", "error"),
                           self._blend_step()))
@@ -260,13 +259,12 @@ class Safeguarded(Pipeline):
     # -- steps -------------------------------------------------------------------------------
     def _split_step(self, fields):
         def run(queue, f, wait_for):
-            npx = f.width * f.height
             evs = []
             for name in fields:
                 width = int(np.prod(FIELDS[name]))
                 evs.append(("safeguard_split", self.passes.split_field(
                     queue, f.buffers[name], f.buffers[f"a.{name}"], f.buffers[f"b.{name}"],
-                    npx, f.spp, width, wait_for)))
+                    f.width * f.height, f.spp, width, wait_for)))
             return evs
         return run
 
@@ -367,7 +365,8 @@ class Safeguarded(Pipeline):
                                          wait_for, GUIDED_Z7 if t7 else
                                          SHRINK_Z7 if self.independent else 0.0,
                                          b["sg_scale"] if self.scaled else None, t3,
-                                         models_covariance(f.spp))
+                                         models_covariance(f.spp), (b["sg_fdr_hist"],
+                                         b["sg_fdr_z"], FDR_Q) if self.guided else None)
         return run
 
     # -- protocol ----------------------------------------------------------------------------
@@ -384,7 +383,8 @@ class Safeguarded(Pipeline):
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True
         t7, t3 = bias_tests(bool(self.guided), self.info.spp)  # the frame's spp: the plan's
-        d["safeguard_bias_tests"] = {"7x7 at 2 se": t7, "3x3 at 2 se": t3}
+        at = f"FDR {FDR_Q}" if self.guided else "2 se"
+        d["safeguard_bias_tests"] = {f"7x7 at {at}": t7, "3x3 at 2 se": t3}
         said = {"safeguard_convergence": (self.scaled, "measured (the halves' variances "
                                           "scaled by it)"),
                 "safeguard_samples": (self.independent, "independent (declared): the halves' "

@@ -29,6 +29,14 @@ MIN_TEST_HALF = 4
 #: the fewest samples a half holds for the guided chain's blend to keep its 3x3 test
 #: (:func:`bias_tests`): from 32 spp
 CHAIN_TEST3_HALF = 16
+#: the 7x7 test's histogram at a false discovery rate (kernels/safeguard_fdr.cl): bins of
+#: z = mu7 / se7 a pixel, 1 / FDR_SCALE wide, the last holding z >= FDR_BINS / FDR_SCALE (8)
+FDR_BINS, FDR_SCALE = 256, 32
+#: the guided chain tests its 7x7 bias mean at every spp (its regression removes the bias
+#: coherent over its windows), at the z where the frame's pixels pass at this false discovery
+#: rate (Benjamini-Hochberg: few true biases in a frame set a high bar, many a low one; the
+#: usual level; ``docs/measurements/chain-safeguard-pocl.md`` section 7)
+FDR_Q = 0.05
 #: the row segments' planes: vb3, vm3, e3, ee3 (3 wide), e7, vb7, e3max, e7max, ee7 (7 wide)
 ROW_PLANES = 9
 #: padding columns on each side of the statistics' planes (the 7-wide window's reach)
@@ -104,7 +112,7 @@ def vector_width(context: cl.Context) -> int:
 
 class SafeguardPasses:
     """The kernels of ``kernels/safeguard.cl``, built for this context's vector width, and
-    ``kernels/safeguard_ratio.cl``'s two."""
+    ``kernels/safeguard_ratio.cl``'s and ``kernels/safeguard_fdr.cl``'s two each."""
 
     def __init__(self, context: cl.Context, vw: int | None = None):
         """``vw``: the vector width (1, 4, 8 or 16; default :func:`vector_width`)."""
@@ -119,6 +127,9 @@ class SafeguardPasses:
         self.blend = get_kernel(context, "safeguard", "safeguard_blend", defines)
         self.ratio_rows = get_kernel(context, "safeguard_ratio", "safeguard_ratio_rows")
         self.ratio = get_kernel(context, "safeguard_ratio", "safeguard_ratio")
+        fdr = {"FDR_BINS": FDR_BINS, "FDR_SCALE": FDR_SCALE}
+        self.fdr_rows = get_kernel(context, "safeguard_fdr", "safeguard_fdr_rows", fdr)
+        self.fdr = get_kernel(context, "safeguard_fdr", "safeguard_fdr", fdr)
         #: the variances' factor where it is not measured: 1 (independent samples)
         self.one = cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                              hostbuf=np.ones(1, np.float32))
@@ -200,17 +211,40 @@ class SafeguardPasses:
 
     def run_blend(self, queue, stats, rows, box, m, out, error, w, h, mode, write_error,
                   wait_for=None, z7: float = 0.0, vscale=None, test3: bool = True,
-                  cov: bool = False):
+                  cov: bool = False, fdr=None):
         """The windowed sums' row segments, then the blend: [("safeguard_rows", ev),
         ("safeguard_blend", ev)]. ``z7 > 0``: the 7x7 bias mean is tested at ``z7``
         standard errors, as the 3x3 one at 2; ``test3=False``: the bias term leaves the
         3x3 test out (:func:`bias_tests`). ``vscale``: the halves' variances' factor
         (:meth:`run_ratio`'s buffer; None: 1). ``cov``: the bias term adds back the
         covariance of the method's image and box, modelled as ``vm`` (``e = d2 + vm - vb``;
-        :func:`models_covariance`)."""
+        :func:`models_covariance`). ``fdr = (hist, z, q)``: the 7x7 test's z is the frame's
+        at false discovery rate ``q`` (:meth:`run_fdr`, its two launches between), not
+        ``z7``."""
         ev = self.run_rows(queue, stats, rows, w, h, wait_for, vscale, cov)
-        return [("safeguard_rows", ev), ("safeguard_blend", self.run_blend_only(
-            queue, rows, box, m, out, error, w, h, mode, write_error, [ev], z7, test3))]
+        evs = [("safeguard_rows", ev)]
+        if fdr is not None:
+            evs += [("safeguard_fdr", e) for e in self.run_fdr(queue, rows, *fdr, w, h, [ev])]
+        return evs + [("safeguard_blend", self.run_blend_only(
+            queue, rows, box, m, out, error, w, h, mode, write_error, [evs[-1][1]], z7, test3,
+            None if fdr is None else fdr[1]))]
+
+    def run_fdr(self, queue, rows, hist, z, q: float, w, h, wait_for=None):
+        """``z`` (one float): the lowest z at which the frame's 7x7 bias means pass at false
+        discovery rate ``q`` (Benjamini-Hochberg over the pixels' ``mu7 / se7``, to
+        1 / FDR_SCALE), from the row segments; ``hist``: :meth:`fdr_bytes`. Two launches,
+        their events in order."""
+        self.fdr_rows.set_args(rows, hist, np.int32(w), np.int32(h),
+                               np.int32(self.rows_pitch(w)))
+        ev = cl.enqueue_nd_range_kernel(queue, self.fdr_rows, (int(h),), None,
+                                        wait_for=wait_for)
+        self.fdr.set_args(hist, np.int32(h), np.int32(w * h), np.float32(q), z)
+        return [ev, cl.enqueue_nd_range_kernel(queue, self.fdr, (1,), None, wait_for=[ev])]
+
+    @staticmethod
+    def fdr_bytes(height: int) -> int:
+        """Bytes of :meth:`run_fdr`'s histogram."""
+        return int(height) * FDR_BINS * 4
 
     def run_rows(self, queue, stats, rows, w, h, wait_for=None, vscale=None, cov=False):
         """The windowed sums' row segments alone (``vscale``, ``cov`` as for
@@ -223,13 +257,15 @@ class SafeguardPasses:
                                           wait_for=wait_for)
 
     def run_blend_only(self, queue, rows, box, m, out, error, w, h, mode, write_error,
-                       wait_for=None, z7: float = 0.0, test3: bool = True):
+                       wait_for=None, z7: float = 0.0, test3: bool = True, zfdr=None):
         """The blend from row segments already computed (the same weights for any box and
         m: the guided refinement blends each half with them). ``out`` may be ``box`` or
-        ``m`` (a work-item reads them at its own pixels only)."""
+        ``m`` (a work-item reads them at its own pixels only). ``zfdr``: :meth:`run_fdr`'s
+        z, read in place of ``z7``."""
         rp = self.rows_pitch(w)
         self.blend.set_args(rows, box, m, out, error, np.int32(w), np.int32(h), np.int32(rp),
                             np.int32(mode), np.int32(write_error), np.float32(z7),
-                            np.int32(bool(test3)))
+                            np.int32(bool(test3)), np.int32(zfdr is not None),
+                            self.one if zfdr is None else zfdr)
         return cl.enqueue_nd_range_kernel(queue, self.blend, (rp // self.vw, h), None,
                                           wait_for=wait_for)

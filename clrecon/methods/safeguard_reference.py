@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from clrecon.methods.safeguard_passes import halves, measures_convergence, models_covariance
+from clrecon.methods.safeguard_passes import (
+    FDR_BINS,
+    FDR_SCALE,
+    halves,
+    measures_convergence,
+    models_covariance,
+)
 
 _FLT_MAX = float(np.finfo(np.float32).max)  # the error image saturates there
 
@@ -57,15 +63,33 @@ def variance_scale(color: np.ndarray) -> float:
     return float(np.clip(r, 0.0, 1.0)) if np.isfinite(r) else 1.0
 
 
+def fdr_threshold(mu7: np.ndarray, var7: np.ndarray, q: float) -> float:
+    """The 7x7 test's z at false discovery rate ``q`` (``kernels/safeguard_fdr.cl``): the
+    lowest bin edge ``t = j / FDR_SCALE`` with ``N Q(t) <= q R(t)``, ``R(t)`` the pixels
+    whose ``mu7 / se7`` (``se7^2 = var7``) is at least ``t`` (Benjamini-Hochberg, to the
+    bins' resolution; ``Q`` the normal's upper tail), ``FDR_BINS / FDR_SCALE`` if none."""
+    from math import erfc, sqrt
+    pos = mu7 > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(var7[pos] > 0, mu7[pos] / np.sqrt(var7[pos]), np.inf)
+    top = FDR_BINS / FDR_SCALE
+    bins = np.where(z < top, np.floor(z * FDR_SCALE), FDR_BINS - 1).astype(np.int64)
+    r = np.cumsum(np.bincount(bins, minlength=FDR_BINS)[::-1])[::-1]
+    for j in range(FDR_BINS):
+        if mu7.size * 0.5 * erfc(j / FDR_SCALE / sqrt(2)) <= q * r[j]:
+            return j / FDR_SCALE
+    return top
+
+
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
               z7: float = 0.0, test3: bool = True, cov: bool | None = None,
-              vscale: float | None = None):
+              vscale: float | None = None, fdr_q: float | None = None):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
     The halves' variances are scaled by ``vscale`` (None: :func:`variance_scale`, the
     frame's measured factor; 1: declared independent samples); ``cov`` (None: from 16 spp,
-    as the pipeline: ``safeguard_passes.models_covariance``) as for
+    as the pipeline: ``safeguard_passes.models_covariance``) and ``fdr_q`` as for
     :func:`reference_of_halves`."""
     s = color.shape[2]
     ha, hb = halves(s)
@@ -75,12 +99,12 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
     cov = models_covariance(s) if cov is None else bool(cov)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
                                mode, z7, variance_scale(c) if vscale is None else vscale,
-                               test3, cov)[:2]
+                               test3, cov, fdr_q)[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
                         mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0,
-                        test3: bool = True, cov: bool = False):
+                        test3: bool = True, cov: bool = False, fdr_q: float | None = None):
     """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
     ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
     half estimates, as the guided refinement's blend toward its guide takes) and the
@@ -92,7 +116,8 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     the factor of the halves' variances (:func:`variance_scale`; 1: independent samples).
     ``test3=False``: the bias term leaves the 3x3 test out (``safeguard_passes.bias_tests``).
     ``cov``: the covariance of the method's image and box added back, modelled as ``vm``:
-    ``e = d2 + vm - vb`` (``safeguard_passes.models_covariance``)."""
+    ``e = d2 + vm - vb`` (``safeguard_passes.models_covariance``). ``fdr_q``: the 7x7 test's
+    z is :func:`fdr_threshold`'s at that rate (the guided chain), not ``z7``."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     s = ha + hb
     box = (ha * a + hb * b) / s
@@ -111,9 +136,10 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     n3 = _window_count(e.shape, 1)
     se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
     mu7 = _window_mean(e, 3)
-    if z7 != 0:
+    if z7 != 0 or fdr_q is not None:
         n7 = _window_count(e.shape, 3)
         var7 = np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7
+        z7 = z7 if fdr_q is None else fdr_threshold(mu7, var7, fdr_q)
         with np.errstate(divide="ignore", invalid="ignore"):
             mu7 = mu7 - z7 * np.sqrt(var7) if z7 > 0 else \
                 np.where(mu7 > 0, mu7 - var7 / np.where(mu7 > 0, mu7, 1.0), 0.0)

@@ -53,13 +53,13 @@ def test_pipeline_refines_the_halves(device, rng, method, safeguard, guide_blend
     if not safeguard:
         mean = (ha * ra + (buf.spp - ha) * rb) / buf.spp
         assert_close(image, mean, rtol=1e-4, atol=tol, what="image = refined halves' mean")
-    else:  # the safeguard's blend toward box, its 7x7 bias mean tested at 2 standard errors
+    else:  # the safeguard's blend toward box, its 7x7 bias mean tested at the frame's z
         c = buf.color.astype(np.float64)
         want, _, _ = reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha,
                                          buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
                                          sg.GUIDED_Z7, variance_scale(c),
                                          bias_tests(True, buf.spp)[1],
-                                         models_covariance(buf.spp))
+                                         models_covariance(buf.spp), sg.FDR_Q)
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()
     assert d["guided"] == 2 and d["safeguard"] is safeguard

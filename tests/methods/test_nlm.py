@@ -55,7 +55,8 @@ def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp
         want, _, _ = reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha,
                                          buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
                                          sg.GUIDED_Z7 if tests[0] else 0.0, variance_scale(c),
-                                         tests[1], models_covariance(buf.spp))
+                                         tests[1], models_covariance(buf.spp),
+                                         sg.FDR_Q if guided else None)
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()
     assert d["nlm"] == 3 and d["nlm_scales"] == scales and "nlm" in d["plan"]

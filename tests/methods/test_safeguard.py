@@ -262,8 +262,9 @@ def test_halves_mean_skips_the_run_on_the_frame(device, method):
                                                  (32, 2, True, True)])
 def test_describe_names_the_bias_tests(device, spp, guided, t7, t3):
     """Which windows the blend tests (safeguard_passes.bias_tests) is in the plan's
-    description: below 8 spp the 7x7 mean is tested, and the guided chain keeps the 3x3
-    test only from 32 spp."""
+    description: below 8 spp the 7x7 mean is tested (the guided chain's always, at a false
+    discovery rate), and the guided chain keeps the 3x3 test only from 32 spp."""
     buf = frame(np.random.default_rng(spp), h=12, w=13, s=spp)
     got = run(buf, method="splat", device=device, guided=guided)
-    assert got.method["safeguard_bias_tests"] == {"7x7 at 2 se": t7, "3x3 at 2 se": t3}
+    at = f"FDR {sg.FDR_Q}" if guided else "2 se"  # the chain: its frame's z (safeguard_fdr)
+    assert got.method["safeguard_bias_tests"] == {f"7x7 at {at}": t7, "3x3 at 2 se": t3}

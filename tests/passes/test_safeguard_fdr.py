@@ -1,0 +1,138 @@
+"""The guided chain's 7x7 bias test at a false discovery rate (``kernels/safeguard_fdr.cl``
+through :class:`clrecon.methods.safeguard_passes.SafeguardPasses`): the NumPy reference's
+threshold against known answers and the exact Benjamini-Hochberg procedure, the kernels'
+threshold against the reference's, and the blend reading it."""
+from __future__ import annotations
+
+import math
+from statistics import NormalDist
+
+import numpy as np
+import pyopencl as cl
+import pytest
+from conftest import assert_close
+
+from clrecon.methods import safeguard as sg
+from clrecon.methods.safeguard_passes import FDR_BINS, FDR_SCALE, SafeguardPasses
+from clrecon.methods.safeguard_reference import (
+    _lum2,
+    _window_count,
+    _window_mean,
+    fdr_threshold,
+    halves,
+)
+
+TOP = FDR_BINS / FDR_SCALE
+
+
+def _z_frame(zs):
+    """(mu7, var7) whose pixels' mu7 / se7 are ``zs`` (se7 = 1)."""
+    zs = np.asarray(zs, np.float64)
+    return zs, np.ones_like(zs)
+
+
+def test_known_answers():
+    # 1000 pixels of noise (z 0.5) and 100 biased (z 5): R(t) = 100 from t = 0.5 to 5, so
+    # the lowest edge with 1100 Q(t) <= 0.05 * 100 is the first above Q^-1(5 / 1100) = 2.6104
+    mu, var = _z_frame([0.5] * 1000 + [5.0] * 100)
+    assert fdr_threshold(mu, var, 0.05) == np.ceil(2.6104 * FDR_SCALE) / FDR_SCALE
+    # noise alone, or no positive mean: no edge passes
+    assert fdr_threshold(*_z_frame([0.5] * 1000), 0.05) == TOP
+    assert fdr_threshold(-np.ones(50), np.ones(50), 0.05) == TOP
+    # a mean with no spread (se 0) is z = inf, a discovery at every edge: R(t) = 1, the
+    # edge the first above Q^-1(0.05 / 21)
+    mu, var = _z_frame([0.5] * 20 + [1.0])
+    var[-1] = 0.0
+    edge = np.ceil(NormalDist().inv_cdf(1 - 0.05 / 21) * FDR_SCALE) / FDR_SCALE
+    assert fdr_threshold(mu, var, 0.05) == edge
+
+
+def _bh_count(z, q):
+    """The exact Benjamini-Hochberg procedure: how many of the one-sided p-values pass."""
+    p = np.sort([0.5 * math.erfc(v / math.sqrt(2)) for v in z])
+    ok = np.nonzero(p <= q * np.arange(1, p.size + 1) / p.size)[0]
+    return ok[-1] + 1 if ok.size else 0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_binned_threshold_brackets_the_exact_procedure(seed):
+    """The binned threshold discovers at most what the exact procedure does at rate q, and at
+    least what it does at q / 1.2 (a bin 1/32 wide moves the normal's tail by under 1.2x below
+    z = 5.8)."""
+    rng = np.random.default_rng(seed)
+    n_bias = int(rng.integers(50, 800))
+    z = np.concatenate([rng.normal(size=20000), rng.normal(3.0, 0.8, n_bias)])
+    t = fdr_threshold(*_z_frame(z), 0.05)
+    found = int(np.sum(z >= t))
+    assert _bh_count(z, 0.05 / 1.2) <= found <= _bh_count(z, 0.05)
+    assert 1.6 < t < 5.0
+
+
+def _frame(rng, h, w, s, strength):
+    color = rng.random((h, w, s, 3)) * rng.choice([0.5, 4.0], (h, w, 1, 1))
+    ma, mb = (color.mean(2) + 0.2 * rng.random((h, w, 3)) for _ in range(2))
+    m = 0.5 * (ma + mb)
+    m[h // 3: h // 3 + 6, w // 4: w // 4 + 9] += strength  # a biased patch
+    return color, m, ma, mb
+
+
+def _mu_var(color, m, ma, mb):
+    """The 7x7 bias mean and its squared standard error as the blend computes them (5 spp:
+    no covariance term, the halves' variances unscaled)."""
+    c = color.astype(np.float64)
+    ha, hb = halves(c.shape[2])
+    a, b = c[:, :, :ha].mean(2), c[:, :, ha:].mean(2)
+    k, box = ha * hb / (ha + hb) ** 2, (ha * a + hb * b) / (ha + hb)
+    e = _lum2(m.astype(np.float64) - box) - k * _lum2(ma.astype(np.float64) - mb) \
+        - k * _lum2(a - b)
+    mu7 = _window_mean(e, 3)
+    return mu7, np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / _window_count(e.shape, 3)
+
+
+def _device(device, vw, color, m, ma, mb):
+    """(z, image) of the passes as the chain's blend runs them."""
+    ctx, q = device.context, device.queue
+    h, w, s, _ = color.shape
+    passes, mf = SafeguardPasses(ctx, vw), cl.mem_flags
+
+    def up(a):
+        return cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                         hostbuf=np.ascontiguousarray(a, np.float32))
+
+    bufs = {k: up(v) for k, v in dict(color=color, m=m, ma=ma, mb=mb).items()}
+    box, out = (cl.Buffer(ctx, mf.READ_WRITE, h * w * 12) for _ in range(2))
+    err = cl.Buffer(ctx, mf.READ_WRITE, h * w * 4)
+    stats = up(np.full(passes.stats_bytes(w, h) // 4, np.nan))
+    rows = up(np.full(passes.rows_bytes(w, h) // 4, np.nan))
+    # the histogram starts as garbage: each row's pass must clear its own
+    hist = up(np.full(passes.fdr_bytes(h) // 4, 7, np.int32).view(np.float32))
+    z = up(np.full(1, np.nan))
+    ev = passes.run_stats(q, bufs["color"], bufs["m"], bufs["ma"], bufs["mb"], box, stats,
+                          w, h, s, 1)
+    passes.run_blend(q, stats, rows, box, bufs["m"], out, err, w, h, sg.MODE_BLEND, 1, [ev],
+                     sg.GUIDED_Z7, None, False, False, (hist, z, sg.FDR_Q))[-1][1].wait()
+    zs, img = np.empty(1, np.float32), np.empty((h, w, 3), np.float32)
+    cl.enqueue_copy(q, zs, z)
+    cl.enqueue_copy(q, img, out)
+    return float(zs[0]), img
+
+
+@pytest.mark.parametrize("vw", [1, 16])
+@pytest.mark.parametrize("w, strength", [(37, 0.6), (64, 1.2), (33, 0.0)])
+def test_kernels_match_reference(device, vw, w, strength):
+    rng = np.random.default_rng(w + vw)
+    color, m, ma, mb = _frame(rng, 40, w, 5, strength)
+    z, img = _device(device, vw, color, m, ma, mb)
+    f32 = [x.astype(np.float32) for x in (color, m, ma, mb)]
+    want_z = fdr_threshold(*_mu_var(*f32), sg.FDR_Q)
+    # float32 sums against float64 ones: a pixel at a bin's edge may fall either side
+    assert abs(z - want_z) <= 1.0 / FDR_SCALE, (z, want_z)
+    if strength:  # the biased patch sets a threshold between the extremes
+        assert 1.6 < want_z < 4.0
+    want, _ = sg.reference(*f32, z7=sg.GUIDED_Z7, test3=False, vscale=1.0, fdr_q=sg.FDR_Q)
+    if z == want_z:
+        assert_close(img, want, rtol=1e-4, atol=1e-5 * float(np.abs(want).max()),
+                     what=f"image vw={vw} w={w}")
+    if strength:  # the frame's z, not the fixed one: the case tells a blend that ignores it
+        fixed, _ = sg.reference(*f32, z7=sg.GUIDED_Z7, test3=False, vscale=1.0)
+        assert np.abs(fixed - want).max() > 1e-3 * float(np.abs(want).max())
