@@ -10,12 +10,14 @@
  *                       bin edge t with npix * Q(t) <= q * R(t), R(t) the pixels with z >= t
  *                       and Q the normal's upper tail (Benjamini-Hochberg at level q, to
  *                       the bins' resolution); FDR_BINS / FDR_SCALE where no edge passes
- * Arguments: rows, the nine row-segment planes of safeguard_rows (pitch rp); hist
+ * Arguments: rows, the nine row-segment planes of safeguard_rows (pitch rp, a multiple of
+ * SG_VW: kernels/safeguard_vec.h, the host's vector width); hist
  * (H, FDR_BINS) ints; z (1 float), what safeguard_blend reads with fdr = 1.
  * The windows' sums are those of safeguard_blend (the same units, the same order of the
  * additions), so a pixel's z is the blend's mu7 / se7.
  */
 #include "common.h"
+#include "safeguard_vec.h"
 
 #ifndef FDR_BINS
 #define FDR_BINS 256
@@ -24,12 +26,8 @@
 #define FDR_SCALE 32
 #endif
 
-/* 2^n for n <= 0 (a scalar), flushed to 0 below float32's normal range */
-inline float fdr_pow2_nonpos(const int n)
-{
-    return n >= -126 ? as_float((n + 127) << 23) : 0.0f;
-}
-
+/* SG_VW pixels x0 .. x0 + SG_VW - 1 at a time (the rows' pitch is a multiple of SG_VW; lanes
+ * past the width read the row's padding and are not counted) */
 __kernel void safeguard_fdr_rows(__global const float *rows, __global int *hist, int width,
                                  int height, int rp)
 {
@@ -42,26 +40,34 @@ __kernel void safeguard_fdr_rows(__global const float *rows, __global int *hist,
     const size_t rplane = (size_t)rp * height;
     const int y0 = max(y - 3, 0), y1 = min(y + 3, height - 1);
     const int r7 = y1 - y0 + 1;
-    for (int x = 0; x < width; ++x) {
-        const __global const float *col = rows + x;
-        int emax = INT_MIN;
+    /* the scalar operands broadcast explicitly (as safeguard_blend: Oclgrind's min) */
+    const vint last = (vint)(width - 1), zero = (vint)(0);
+    for (int x0 = 0; x0 < width; x0 += SG_VW) {
+        const __global float *col = rows + x0;
+        vint emax = (vint)(INT_MIN);
         for (int yy = y0; yy <= y1; ++yy)
-            emax = max(emax, (int)col[7 * rplane + (size_t)yy * rp]);
-        float e7 = 0.0f, ee7 = 0.0f;
+            emax = max(emax, CONVERT_INT(VLOAD(col + 7 * rplane + (size_t)yy * rp)));
+        vfloat e7 = 0.0f, ee7 = 0.0f;
         for (int yy = y0; yy <= y1; ++yy) {
-            const __global const float *r = col + (size_t)yy * rp;
-            const float f7 = fdr_pow2_nonpos(2 * ((int)r[7 * rplane] - emax));
-            e7 += f7 * r[4 * rplane];
-            ee7 += (f7 * f7) * r[8 * rplane];
+            const __global float *r = col + (size_t)yy * rp;
+            const vfloat f7 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 7 * rplane)) - emax));
+            e7 += f7 * VLOAD(r + 4 * rplane);
+            ee7 += (f7 * f7) * VLOAD(r + 8 * rplane);
         }
-        const int c7 = min(x + 3, width - 1) - max(x - 3, 0) + 1;
-        const float n7 = (float)(c7 * r7);
-        const float mu7 = e7 / n7;
-        if (!(mu7 > 0.0f))
-            continue;
-        const float var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;
-        const float z = var7 > 0.0f ? mu7 / sqrt(var7) : INFINITY;
-        h[z < (float)FDR_BINS / FDR_SCALE ? (int)(z * FDR_SCALE) : FDR_BINS - 1] += 1;
+        const vint x = x0 + SG_LANES;
+        const vfloat n7 = CONVERT_FLOAT((min(x + 3, last) - max(x - 3, zero) + 1) * r7);
+        const vfloat mu7 = e7 / n7;
+        const vfloat var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;
+        /* no spread: z = +inf (a discovery at every edge) */
+        const vfloat z = select((vfloat)(INFINITY), mu7 / sqrt(var7), var7 > 0.0f);
+        float zl[SG_VW], ml[SG_VW];
+        VSTORE(z, zl);
+        VSTORE(mu7, ml);
+        const int n = min(SG_VW, width - x0);
+        for (int i = 0; i < n; ++i)
+            if (ml[i] > 0.0f)
+                h[zl[i] < (float)FDR_BINS / FDR_SCALE ? (int)(zl[i] * FDR_SCALE)
+                                                       : FDR_BINS - 1] += 1;
     }
 }
 

@@ -127,7 +127,7 @@ class SafeguardPasses:
         self.blend = get_kernel(context, "safeguard", "safeguard_blend", defines)
         self.ratio_rows = get_kernel(context, "safeguard_ratio", "safeguard_ratio_rows")
         self.ratio = get_kernel(context, "safeguard_ratio", "safeguard_ratio")
-        fdr = {"FDR_BINS": FDR_BINS, "FDR_SCALE": FDR_SCALE}
+        fdr = {**defines, "FDR_BINS": FDR_BINS, "FDR_SCALE": FDR_SCALE}
         self.fdr_rows = get_kernel(context, "safeguard_fdr", "safeguard_fdr_rows", fdr)
         self.fdr = get_kernel(context, "safeguard_fdr", "safeguard_fdr", fdr)
         #: the variances' factor where it is not measured: 1 (independent samples)

@@ -1,0 +1,49 @@
+/* safeguard_vec.h: the safeguard's window passes' vector lanes (kernels/safeguard.cl,
+ * kernels/safeguard_fdr.cl): SG_VW consecutive pixels of a row a work-item as floatN
+ * (SG_VW 1, 4, 8 or 16; the host passes 16 for CPUs, 1 otherwise:
+ * clrecon/methods/safeguard_passes.vector_width). */
+#ifndef SAFEGUARD_VEC_H
+#define SAFEGUARD_VEC_H
+
+#ifndef SG_VW
+#define SG_VW 16
+#endif
+#define SG_CAT_(a, b) a##b
+#define SG_CAT(a, b) SG_CAT_(a, b)
+#if SG_VW == 1
+typedef float vfloat;
+typedef int vint;
+#define VLOAD(p) (*(p))
+#define VSTORE(v, p) (*(p) = (v))
+#define CONVERT_INT(v) ((int)(v))
+#define CONVERT_FLOAT(v) ((float)(v))
+#define AS_FLOAT(v) as_float(v)
+#define SG_LANES 0
+#else
+typedef SG_CAT(float, SG_VW) vfloat;
+typedef SG_CAT(int, SG_VW) vint;
+#define VLOAD(p) SG_CAT(vload, SG_VW)(0, p)
+#define VSTORE(v, p) SG_CAT(vstore, SG_VW)(v, 0, p)
+#define CONVERT_INT(v) SG_CAT(convert_int, SG_VW)(v)
+#define CONVERT_FLOAT(v) SG_CAT(convert_float, SG_VW)(v)
+#define AS_FLOAT(v) SG_CAT(as_float, SG_VW)(v)
+#if SG_VW == 4
+#define SG_LANES ((int4)(0, 1, 2, 3))
+#elif SG_VW == 8
+#define SG_LANES ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
+#elif SG_VW == 16
+#define SG_LANES ((int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#else
+#error "SG_VW must be 1, 4, 8 or 16"
+#endif
+#endif
+
+/* 2^n for n <= 0, flushed to 0 below float32's normal range (n < -126): a pixel that much
+ * dimmer than its window's brightest adds nothing measurable. Built from the bits, not
+ * ldexp: a select that stays in lanes, where ldexp is a library call. */
+__attribute__((always_inline)) inline vfloat pow2_nonpos(const vint n)
+{
+    return select((vfloat)(0.0f), AS_FLOAT((n + 127) << 23), n >= -126);
+}
+
+#endif
