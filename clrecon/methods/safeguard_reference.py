@@ -3,6 +3,8 @@ the image and error estimate from the unbiased estimate's halves and the method'
 in float64, as ``kernels/safeguard.cl`` computes them."""
 from __future__ import annotations
 
+from math import erfc, sqrt
+
 import numpy as np
 
 from clrecon.methods.safeguard_passes import (
@@ -68,7 +70,6 @@ def fdr_threshold(mu7: np.ndarray, var7: np.ndarray, q: float) -> float:
     lowest bin edge ``t = j / FDR_SCALE`` with ``N Q(t) <= q R(t)``, ``R(t)`` the pixels
     whose ``mu7 / se7`` (``se7^2 = var7``) is at least ``t`` (Benjamini-Hochberg, to the
     bins' resolution; ``Q`` the normal's upper tail), ``FDR_BINS / FDR_SCALE`` if none."""
-    from math import erfc, sqrt
     pos = mu7 > 0
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(var7[pos] > 0, mu7[pos] / np.sqrt(var7[pos]), np.inf)
