@@ -261,8 +261,9 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
                               int write_error, float z7, int test3, int fdr,
                               __global const float *zfdr)
 {
-    /* fdr = 1: the 7x7 test's z is the frame's (kernels/safeguard_fdr.cl) */
-    if (fdr)
+    /* fdr = 1: the 7x7 test's z is the frame's (kernels/safeguard_fdr.cl); fdr = 2: zfdr is
+     * the frame's table of factors by |z|'s bin (safeguard_fdr_shrink), z7 unused */
+    if (fdr == 1)
         z7 = zfdr[0];
     const int x0 = get_global_id(0) * SG_VW, y = get_global_id(1);
     if (x0 >= width || y >= height)
@@ -286,7 +287,7 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
         const vfloat f7 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 7 * rplane)) - emax));
         e7 += f7 * VLOAD(r + 4 * rplane);
         vb7 += f7 * VLOAD(r + 5 * rplane);
-        if (z7 != 0.0f)
+        if (z7 != 0.0f || fdr == 2)
             ee7 += (f7 * f7) * VLOAD(r + 8 * rplane);
         if (k >= -1 && k <= 1) {
             const vfloat f3 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 6 * rplane)) - emax));
@@ -320,7 +321,17 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
     /* with z7 > 0 the 7x7 mean too must stand z7 standard errors above zero (the guided
      * refinement's chain: its regression removes the bias coherent over its windows) */
     vfloat mu7 = e7 / n7;
-    if (z7 != 0.0f) {
+    if (fdr == 2) {
+        /* a positive mean scaled by its significance's bin's factor: 1 minus the share of
+         * the frame's means at least as significant that are noise */
+        const vfloat var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;
+        const vfloat z = select((vfloat)(INFINITY), fabs(mu7) / sqrt(var7), var7 > 0.0f);
+        float zl[SG_VW], fl[SG_VW];
+        VSTORE(z, zl);
+        for (int i = 0; i < SG_VW; ++i)
+            fl[i] = zfdr[fdr_bin(zl[i])];
+        mu7 = select((vfloat)(0.0f), mu7 * VLOAD(fl), mu7 > 0.0f);
+    } else if (z7 != 0.0f) {
         const vfloat var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;  /* se7^2 */
         /* z7 < 0: shrunk by its significance (a positive-part James-Stein shrinkage: the
          * positive noise of a mean near 0 no longer pulls the image toward box) */

@@ -1,41 +1,53 @@
-/* safeguard_fdr.cl: the guided chain's 7x7 bias test at a false discovery rate, for the
+/* safeguard_fdr.cl: the 7x7 bias mean judged against the frame's own pixels, for the
  * safeguard's blend (kernels/safeguard.cl; clrecon/methods/safeguard_reference.py:
- * fdr_threshold the NumPy reference; the derivation in clrecon/methods/safeguard.py).
+ * fdr_threshold and fdr_shrink_table the NumPy references; the derivation in
+ * clrecon/methods/safeguard.py and safeguard_passes.py).
  *
- *   safeguard_fdr_rows  one work-item per image row: each pixel's 7x7 bias mean over its
- *                       standard error, z = mu7 / se7, counted into the row's histogram
- *                       of FDR_BINS bins of width 1 / FDR_SCALE (z >= FDR_BINS / FDR_SCALE
- *                       in the last; pixels with mu7 <= 0 are not counted)
- *   safeguard_fdr       one work-item: the rows' histograms summed, and z[0] = the lowest
- *                       bin edge t with npix * Q(t) <= q * R(t), R(t) the pixels with z >= t
- *                       and Q the normal's upper tail (Benjamini-Hochberg at level q, to
- *                       the bins' resolution); FDR_BINS / FDR_SCALE where no edge passes
+ *   safeguard_fdr_rows    one work-item per image row: each pixel's 7x7 bias mean over its
+ *                         standard error, |z| = |mu7| / se7, counted into the row's
+ *                         histogram of 2 FDR_BINS bins of width 1 / FDR_SCALE (|z| >=
+ *                         FDR_BINS / FDR_SCALE in the last of each half): the first half
+ *                         the pixels with mu7 > 0, the second those with mu7 < 0
+ *                         (noisy_only = 1: only the windows where box shows noise)
+ *   safeguard_fdr         one work-item: the rows' positive halves summed, and z[0] = the
+ *                         lowest bin edge t with npix * Q(t) <= q * R(t), R(t) the pixels
+ *                         with z >= t and Q the normal's upper tail (Benjamini-Hochberg at
+ *                         level q, to the bins' resolution); FDR_BINS / FDR_SCALE where no
+ *                         edge passes (the guided chain's test)
+ *   safeguard_fdr_shrink  one work-item: the rows' histograms summed (into hist's first
+ *                         row), and each bin's factor table[j] = 1 - min over i <= j of
+ *                         min(1, N(t_i) / R(t_i)), N(t) the pixels with z <= -t: a mean is
+ *                         never negative but by noise, so N(t) estimates how many of the
+ *                         R(t) positive ones at least as significant are noise too (the
+ *                         frame's false discovery rate with its null read off the frame
+ *                         itself, as a q-value); with centre, the null mirrored about the
+ *                         frame's mode of z instead of 0 (N(t): z <= 2 mode - t): where the
+ *                         halves overstate the variance, the noise's means centre below 0.
+ *                         The blend scales a positive mu7 by its bin's factor
  * Arguments: rows, the nine row-segment planes of safeguard_rows (pitch rp, a multiple of
- * SG_VW: kernels/safeguard_vec.h, the host's vector width); hist
- * (H, FDR_BINS) ints; z (1 float), what safeguard_blend reads with fdr = 1.
+ * SG_VW: kernels/safeguard_vec.h, the host's vector width); hist (H, 2 FDR_BINS) ints; z
+ * (1 float), what safeguard_blend reads with fdr = 1; table (FDR_BINS floats), what it
+ * reads with fdr = 2.
  * The windows' sums are those of safeguard_blend (the same units, the same order of the
  * additions), so a pixel's z is the blend's mu7 / se7.
  */
 #include "common.h"
 #include "safeguard_vec.h"
 
-#ifndef FDR_BINS
-#define FDR_BINS 256
-#endif
-#ifndef FDR_SCALE
-#define FDR_SCALE 32
+#ifndef FDR_MODE_RADIUS
+#define FDR_MODE_RADIUS 8
 #endif
 
 /* SG_VW pixels x0 .. x0 + SG_VW - 1 at a time (the rows' pitch is a multiple of SG_VW; lanes
  * past the width read the row's padding and are not counted) */
 __kernel void safeguard_fdr_rows(__global const float *rows, __global int *hist, int width,
-                                 int height, int rp)
+                                 int height, int rp, int noisy_only)
 {
     const int y = get_global_id(0);
     if (y >= height)
         return;
-    __global int *h = hist + (size_t)y * FDR_BINS;
-    for (int i = 0; i < FDR_BINS; ++i)
+    __global int *h = hist + (size_t)y * 2 * FDR_BINS;
+    for (int i = 0; i < 2 * FDR_BINS; ++i)
         h[i] = 0;
     const size_t rplane = (size_t)rp * height;
     const int y0 = max(y - 3, 0), y1 = min(y + 3, height - 1);
@@ -47,27 +59,32 @@ __kernel void safeguard_fdr_rows(__global const float *rows, __global int *hist,
         vint emax = (vint)(INT_MIN);
         for (int yy = y0; yy <= y1; ++yy)
             emax = max(emax, CONVERT_INT(VLOAD(col + 7 * rplane + (size_t)yy * rp)));
-        vfloat e7 = 0.0f, ee7 = 0.0f;
+        /* without noisy_only every window counts (vb7 starts above 0) */
+        vfloat e7 = 0.0f, ee7 = 0.0f, vb7 = noisy_only ? 0.0f : 1.0f;
         for (int yy = y0; yy <= y1; ++yy) {
             const __global float *r = col + (size_t)yy * rp;
             const vfloat f7 = pow2_nonpos(2 * (CONVERT_INT(VLOAD(r + 7 * rplane)) - emax));
             e7 += f7 * VLOAD(r + 4 * rplane);
             ee7 += (f7 * f7) * VLOAD(r + 8 * rplane);
+            if (noisy_only)
+                vb7 += VLOAD(r + 5 * rplane);
         }
         const vint x = x0 + SG_LANES;
         const vfloat n7 = CONVERT_FLOAT((min(x + 3, last) - max(x - 3, zero) + 1) * r7);
         const vfloat mu7 = e7 / n7;
         const vfloat var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;
-        /* no spread: z = +inf (a discovery at every edge) */
-        const vfloat z = select((vfloat)(INFINITY), mu7 / sqrt(var7), var7 > 0.0f);
+        /* no spread: |z| = inf (a discovery at every edge) */
+        const vfloat z = select((vfloat)(INFINITY), fabs(mu7) / sqrt(var7), var7 > 0.0f);
+        /* noisy_only: a window whose box shows no noise (vb 0 at its every pixel: the
+         * blend's weight is 0 there whatever its mean) holds no test, and its mean is
+         * rounding, of either sign */
         float zl[SG_VW], ml[SG_VW];
         VSTORE(z, zl);
-        VSTORE(mu7, ml);
+        VSTORE(select(mu7, (vfloat)(0.0f), vb7 <= 0.0f), ml);
         const int n = min(SG_VW, width - x0);
         for (int i = 0; i < n; ++i)
-            if (ml[i] > 0.0f)
-                h[zl[i] < (float)FDR_BINS / FDR_SCALE ? (int)(zl[i] * FDR_SCALE)
-                                                       : FDR_BINS - 1] += 1;
+            if (ml[i] != 0.0f)
+                h[(ml[i] > 0.0f ? 0 : FDR_BINS) + fdr_bin(zl[i])] += 1;
     }
 }
 
@@ -81,11 +98,71 @@ __kernel void safeguard_fdr(__global const int *hist, int height, int npix, floa
     float zs = (float)FDR_BINS / FDR_SCALE;
     for (int j = FDR_BINS - 1; j >= 0; --j) {
         for (int y = 0; y < height; ++y)
-            count += hist[(size_t)y * FDR_BINS + j];
+            count += hist[(size_t)y * 2 * FDR_BINS + j];
         const float t = (float)j / FDR_SCALE;
         /* the normal's upper tail Q(t) = erfc(t / sqrt 2) / 2, in float32 down to ~1e-38 */
         if ((float)npix * 0.5f * erfc(t * M_SQRT1_2_F) <= q * (float)count)
             zs = t;
     }
     z[0] = zs;
+}
+
+/* the frame's count in signed bin k of z (0 .. 2 FDR_BINS - 1: z from -FDR_BINS / FDR_SCALE
+ * up in steps of 1 / FDR_SCALE), from the totals in hist's first row */
+inline long signed_count(__global const int *tot, int k)
+{
+    return k >= FDR_BINS ? tot[k - FDR_BINS] : tot[FDR_BINS + (FDR_BINS - 1 - k)];
+}
+
+__kernel void safeguard_fdr_shrink(__global int *hist, int height, int centre,
+                                   __global float *table)
+{
+    if (get_global_id(0) != 0)
+        return;
+    /* the rows' histograms summed into the first row, column by column (a column's total
+     * overwrites only its own first entry) */
+    for (int c = 0; c < 2 * FDR_BINS; ++c) {
+        int n = 0;
+        for (int y = 0; y < height; ++y)
+            n += hist[(size_t)y * 2 * FDR_BINS + c];
+        hist[c] = n;
+    }
+    /* the null's mirror: signed bin k mirrors to m - k; about z = 0 (m = 2 FDR_BINS - 1),
+     * or with centre about the frame's mode (m = 2 k*, k* the first bin where the counts
+     * of +-FDR_MODE_RADIUS bins, weighted by a triangle (R + 1 - |i - k|), peak) */
+    int m = 2 * FDR_BINS - 1;
+    if (centre) {
+        long best = -1;
+        for (int k = 0; k < 2 * FDR_BINS; ++k) {
+            long n = 0;
+            for (int i = max(k - FDR_MODE_RADIUS, 0);
+                 i <= min(k + FDR_MODE_RADIUS, 2 * FDR_BINS - 1); ++i)
+                n += (FDR_MODE_RADIUS + 1 - abs(i - k)) * signed_count(hist, i);
+            if (n > best) {
+                best = n;
+                m = 2 * k;
+            }
+        }
+    }
+    /* R(t_j): the bins k >= FDR_BINS + j; N(t_j): the bins k <= m - FDR_BINS - j, counted
+     * as j falls from the top */
+    long pos = 0, neg = 0;
+    int lo = m - (2 * FDR_BINS - 1);  /* N's upper bin at the top j */
+    for (int k = 0; k <= min(lo, 2 * FDR_BINS - 1); ++k)
+        neg += signed_count(hist, k);
+    for (int j = FDR_BINS - 1; j >= 0; --j) {
+        pos += signed_count(hist, FDR_BINS + j);
+        if (j < FDR_BINS - 1) {  /* N's upper bin moves up by one */
+            const int k = m - FDR_BINS - j;
+            if (k >= 0 && k < 2 * FDR_BINS)
+                neg += signed_count(hist, k);
+        }
+        table[j] = pos > 0 ? fmin(1.0f, (float)neg / (float)pos) : 1.0f;
+    }
+    /* a q-value: the least rate of any threshold at or below the bin's edge */
+    float q = 1.0f;
+    for (int j = 0; j < FDR_BINS; ++j) {
+        q = fmin(q, table[j]);
+        table[j] = 1.0f - q;
+    }
 }

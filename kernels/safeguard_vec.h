@@ -46,4 +46,20 @@ __attribute__((always_inline)) inline vfloat pow2_nonpos(const vint n)
     return select((vfloat)(0.0f), AS_FLOAT((n + 127) << 23), n >= -126);
 }
 
+/* the histogram of the 7x7 bias means' significance (kernels/safeguard_fdr.cl): FDR_BINS
+ * bins of |z| = |mu7| / se7, 1 / FDR_SCALE wide, the last holding |z| >= FDR_BINS /
+ * FDR_SCALE (the host passes both: clrecon/methods/safeguard_passes.py) */
+#ifndef FDR_BINS
+#define FDR_BINS 256
+#endif
+#ifndef FDR_SCALE
+#define FDR_SCALE 32
+#endif
+
+/* the bin of |z| >= 0 (safeguard_fdr_rows counts it, safeguard_blend looks it up) */
+inline int fdr_bin(float z)
+{
+    return z < (float)FDR_BINS / FDR_SCALE ? (int)(z * FDR_SCALE) : FDR_BINS - 1;
+}
+
 #endif

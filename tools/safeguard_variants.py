@@ -31,7 +31,9 @@ the device's own image to 0.02 dB). A variant changes one thing:
 
 ``shipped`` is the library's estimator at the frame's sample count (below 8 spp its 7x7
 mean is tested at 2 standard errors: ``safeguard_passes.bias_tests``, since 2026-12-07, when
-``se7 2`` was this page's 4-spp winner; from 16 spp its bias term models the covariance);
+``se7 2`` was this page's 4-spp winner; at 8-15 spp, since 2026-12-07, scaled by the frame's
+q-value: ``safeguard_passes.shrinks_by_frame``; from 16 spp its bias term models the
+covariance);
 the others change one thing from the untested form (``cov``: the covariance's estimate in
 place of the model).
 None of these constants is fitted to the scenes.
@@ -51,11 +53,12 @@ from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_passes import bias_tests, models_covariance
+from clrecon.methods.safeguard_passes import bias_tests, models_covariance, shrinks_by_frame
 from clrecon.methods.safeguard_reference import (
     _lum2,
     _window_count,
     _window_mean,
+    fdr_shrink,
     halves,
     variance_scale,
 )
@@ -111,10 +114,13 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np
     mu7, se7 = _se(e, 3)
     rel = np.divide(se7, mu7, out=np.full_like(mu7, np.inf), where=mu7 > 0)  # se7 / mu7
     test7, _ = bias_tests(False, s)  # the library's own tests of a method's halves
+    shipped7 = mu7 - 2 * se7 if test7 else mu7
+    if shrinks_by_frame(False, s):  # 8-15 spp: the frame's q-value, its null about the mode
+        shipped7 = fdr_shrink(mu7, se7 * se7, _window_mean(vb, 3) > 0, centre=True)
     t7 = {"se7 1": mu7 - se7, "se7 2": mu7 - 2 * se7, "se7 2 no 3x3": mu7 - 2 * se7,
           "untested 7x7": mu7,
           "shrink7": np.where(mu7 > 0, mu7 * np.maximum(0.0, 1.0 - rel * rel), 0.0)
-          }.get(variant, mu7 - 2 * se7 if test7 else mu7)
+          }.get(variant, shipped7)
     b2 = np.maximum(0.0, t7 if variant.endswith("no 3x3") else np.maximum(t7, mu3 - 2.0 * se3))
     vm3 = _window_mean(vm, 1)
     vbw = np.maximum(_window_mean(vb, 1), _window_mean(vb, 3))

@@ -25,8 +25,8 @@ radiance averaged over RGB:
   7x7 window (a bias is coherent in space, noise is not), and over 3x3 where that mean
   stands two standard errors above zero (a bias along a thin edge, which the wider window
   dilutes; the noise of the 3x3 mean alone would otherwise pull the image toward box at
-  low spp): ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))`` (below 8 spp and with the
-  guided refinement the windows are tested differently: ``bias_tests``);
+  low spp): ``b2 = max(0, mean7(e), mean3(e) - 2 se3(e))`` (below 16 spp and with the
+  guided refinement ``mean7`` is tested or scaled: ``bias_tests``, ``shrinks_by_frame``);
 * the method's error is ``err_m = b2 + mean3(vm)``; the weight that minimises the expected
   squared error of ``box + w (m - box)`` when the two errors are independent is ``w = vb /
   (vb + err_m)``, and the blend's error ``w^2 err_m + (1 - w)^2 vb``. Here ``vb`` is
@@ -38,25 +38,19 @@ radiance averaged over RGB:
 The sampler's convergence. Halves measure the variance of a half's mean; ``k`` turns it
 into the frame's as if the samples were independent (variance ``1/n``). Stratified samples
 converge faster, so ``vb`` and ``vm`` overstate the frame's variances, and the blend keeps
-a biased method where box is already the better. From 16 spp (each half's two quarters hold
->= 4 samples) the frame measures it (declared ``independent_samples``: ``s = 1``, and the
-untested 7x7 bias mean shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)``): ``s
-= sum S vb / sum dq`` over its pixels, ``dq`` the quarters' squared difference per unit of
-their own ``1/n0 + 1/n1`` (both have the samples' variance as expectation for independent
-samples: ``s = 1``), clamped to [0, 1], scales ``vb`` and ``vm`` everywhere
-(``safeguard_ratio``). It assumes the quarter-to-half convergence holds from half to frame;
-below 16 spp the quarters are too few to say.
+a biased method where box is already the better. From 16 spp (quarters of >= 4 samples)
+the frame measures it (declared ``independent_samples``: ``s = 1``): ``s = sum S vb / sum
+dq``, ``dq`` the quarters' squared difference per unit of their ``1/n0 + 1/n1`` (``s = 1``
+for independent samples), clamped to [0, 1], scales ``vb`` and ``vm`` (``safeguard_ratio``),
+assuming the quarter-to-half convergence holds from half to frame.
 
 As samples grow, ``vb`` falls like box's error while a method's bias does not: ``w`` goes
 to 0 and the image to box's (consistent); where the method is unbiased ``w`` stays near 1.
-Range: colours reach 1e30: the kernels keep each pixel's statistics in units of its own
-binary exponent, rescaled to a window's largest before adding (the error saturates at
-FLT_MAX, colours above ~1e19).
+Range: colours reach 1e30: each pixel's statistics are in units of its own binary
+exponent, rescaled to a window's largest (the error saturates at FLT_MAX above ~1e19).
 
-The method's image is the mean of its halves' images (``Pipeline.halves_mean``: its bias
-the method's, its variance the frame image's); the steps the frame runs once for both
-halves (``shared_steps``, ``joint_steps``) and the cost: docs/ARCHITECTURE.md's safeguard
-paragraph. ``safeguard=False`` is the papers' method alone (``mode="paper"`` in reports).
+The method's image is the mean of its halves' images (``Pipeline.halves_mean``); what runs
+once for both halves and the cost: docs/ARCHITECTURE.md. ``safeguard=False``: the paper.
 """
 from __future__ import annotations
 
@@ -77,6 +71,7 @@ from clrecon.methods.safeguard_passes import (
     halves,
     measures_convergence,
     models_covariance,
+    shrinks_by_frame,
 )
 
 # the NumPy reference and the blend's modes, re-exported from their module (``X as X``)
@@ -86,11 +81,10 @@ from clrecon.methods.safeguard_reference import MODE_METHOD as MODE_METHOD
 from clrecon.methods.safeguard_reference import reference as reference
 from clrecon.methods.safeguard_reference import reference_of_halves as reference_of_halves
 
-#: below 8 spp every blend tests its 7x7 bias mean at 2 standard errors (bias_tests)
-GUIDED_Z7 = 2.0
-#: ``independent_samples=True``: the untested 7x7 bias mean shrunk by its significance instead
-#: (kernels/safeguard.cl's z7 < 0; docs/measurements/sampler-random-pocl.md)
-SHRINK_Z7 = -1.0
+#: below 8 spp every blend tests its 7x7 bias mean at 2 standard errors (bias_tests);
+#: ``independent_samples=True`` from 16 spp shrinks it by its significance (z7 < 0 in
+#: kernels/safeguard.cl; docs/measurements/sampler-random-pocl.md)
+GUIDED_Z7, SHRINK_Z7 = 2.0, -1.0
 
 
 class Safeguarded(Pipeline):
@@ -106,9 +100,7 @@ class Safeguarded(Pipeline):
     The error image is the temporary ``"error"`` ((H, W) float32: the estimated squared
     error of the image, linear radiance, mean over RGB). ``views=False`` copies the halves
     (``safeguard_split``) even where the method could read them in place. ``joint=False``
-    runs the steps a method can run for both halves at once (its ``joint_steps``, which
-    read the frame's samples once) on each half instead; the images are the same bit for bit.
-    """
+    runs a method's ``joint_steps`` (both halves at once) on each half: the same bits."""
 
     def __init__(self, context, info, method: str, knobs: dict, blend: bool = True,
                  full: Pipeline | None = None, views: bool = True, joint: bool = True,
@@ -235,8 +227,13 @@ class Safeguarded(Pipeline):
             temps |= {"sg_partial": self.passes.ratio_bytes(info.height), "sg_scale": 4}
             steps.append(Step("safeguard_ratio", ("stats",), ("sg_scale",),
                               self._ratio_step()))
-        if self.guided:  # the 7x7 test at a false discovery rate: the frame's histogram
-            temps |= {"sg_fdr_hist": self.passes.fdr_bytes(info.height), "sg_fdr_z": 4}
+        # the 7x7 test at a false discovery rate (the chain) or the mean scaled by the
+        # frame's q-value (8-15 spp): the frame's histogram
+        self.frame_shrink = shrinks_by_frame(bool(self.guided), info.spp)
+        if self.guided or self.frame_shrink:
+            q = FDR_Q if self.guided else None
+            temps |= {"sg_fdr_hist": self.passes.fdr_bytes(info.height),
+                      "sg_fdr_z": self.passes.fdr_table_bytes(q)}
         steps.append(Step("safeguard_blend", ("stats", "box") + (() if is_box else ("m",))
                           + (("sg_scale",) if self.scaled else ()), ("out", "error"),
                           self._blend_step()))
@@ -366,7 +363,9 @@ class Safeguarded(Pipeline):
                                          SHRINK_Z7 if self.independent else 0.0,
                                          b["sg_scale"] if self.scaled else None, t3,
                                          models_covariance(f.spp), (b["sg_fdr_hist"],
-                                         b["sg_fdr_z"], FDR_Q) if self.guided else None)
+                                         b["sg_fdr_z"], FDR_Q if self.guided else None,
+                                         not self.independent)
+                                         if self.guided or self.frame_shrink else None)
         return run
 
     # -- protocol ----------------------------------------------------------------------------
@@ -384,12 +383,13 @@ class Safeguarded(Pipeline):
         d["estimate_error"] = True
         t7, t3 = bias_tests(bool(self.guided), self.info.spp)  # the frame's spp: the plan's
         at = f"FDR {FDR_Q}" if self.guided else "2 se"
-        d["safeguard_bias_tests"] = {f"7x7 at {at}": t7, "3x3 at 2 se": t3}
+        d["safeguard_bias_tests"] = {f"7x7 at {at}": t7, "3x3 at 2 se": t3} | (
+            {} if self.guided else {"7x7 by the frame's q-value": self.frame_shrink})
         said = {"safeguard_convergence": (self.scaled, "measured (the halves' variances "
                                           "scaled by it)"),
                 "safeguard_samples": (self.independent, "independent (declared): the halves' "
-                                      "variances as they are; the untested 7x7 bias mean "
-                                      "shrunk by its significance"),
+                                      "variances as they are; from 16 spp the 7x7 bias "
+                                      "mean shrunk by its significance"),
                 "safeguard_covariance": (models_covariance(self.info.spp), "modelled as the "
                                          "method's variance (e = d2 + vm - vb)"),
                 "nlm_of": (self.box_halves, "box's own halves (the samples' means)"),

@@ -32,6 +32,13 @@ CHAIN_TEST3_HALF = 16
 #: the 7x7 test's histogram at a false discovery rate (kernels/safeguard_fdr.cl): bins of
 #: z = mu7 / se7 a pixel, 1 / FDR_SCALE wide, the last holding z >= FDR_BINS / FDR_SCALE (8)
 FDR_BINS, FDR_SCALE = 256, 32
+#: the frame's mode of z (a null centred off 0: :func:`shrinks_by_frame`): the peak of its
+#: histogram smoothed by a triangle of +-FDR_MODE_RADIUS bins (+-0.25)
+FDR_MODE_RADIUS = 8
+#: a method's own blend scales its 7x7 bias mean by the frame's q-value from halves of
+#: :data:`MIN_TEST_HALF` samples to halves of this many, excluded (:func:`shrinks_by_frame`):
+#: 8-15 spp
+SHRINK_HALF_END = 8
 #: the guided chain tests its 7x7 bias mean at every spp (its regression removes the bias
 #: coherent over its windows), at the z where the frame's pixels pass at this false discovery
 #: rate (Benjamini-Hochberg: few true biases in a frame set a high bar, many a low one; the
@@ -85,7 +92,8 @@ def bias_tests(guided: bool, spp: int) -> tuple[bool, bool]:
     where that stands 2 standard errors above zero (a bias along a thin edge).
 
     From halves of :data:`MIN_TEST_HALF` samples (8 spp) a method's own halves take the
-    7x7 mean untested; below, the windows' means of 2-3-sample halves are mostly noise,
+    7x7 mean untested (at 8-15 spp scaled by the frame's q-value: :func:`shrinks_by_frame`);
+    below, the windows' means of 2-3-sample halves are mostly noise,
     whose positive part pulls the image toward a box 10-20 dB worse, so every method tests
     its 7x7 mean (``docs/measurements/safeguard-lowspp-pocl.md``: the defaults +0.01 to
     +2.6 dB in 33 of 36 cells at 4 spp, 256x256 and 512x512). Every method's own blend
@@ -104,6 +112,34 @@ def bias_tests(guided: bool, spp: int) -> tuple[bool, bool]:
     return bool(guided) or h < MIN_TEST_HALF, not guided or h >= CHAIN_TEST3_HALF
 
 
+def shrinks_by_frame(guided: bool, spp: int) -> bool:
+    """Whether the blend scales its 7x7 bias mean by ``1 - q``, ``q`` the frame's false
+    discovery rate at the mean's significance with the frame's negative means as its null
+    (``kernels/safeguard_fdr.cl``: ``safeguard_fdr_shrink``): a method's own blend with
+    halves of :data:`MIN_TEST_HALF` to :data:`SHRINK_HALF_END` - 1 samples (8-15 spp),
+    where it took the mean untested (and, declared independent, shrunk by its significance).
+
+    A mean of ``e`` is negative by noise alone, so the frame's negative means tell how many
+    of its positive ones at the same significance are noise: no model of the noise, no
+    fitted constant; the blend's weight with ``(1 - q) mu7`` minimises the expected error
+    when ``q`` is the chance the mean is noise. The mirror is about 0 where ``e``'s noise is
+    centred there, on independent samples (``independent_samples=True``); on stratified
+    ones below 16 spp the halves overstate the variance (:func:`measures_convergence`), the
+    noise's means centre below 0 (the frame's mode of z: -0.1 to -1.1 on the built-in
+    scenes at 8 spp) and the mirror is about the frame's mode (``centre``). Measured
+    (``docs/measurements/frame-shrink-pocl.md``, ``tools/frame_shrink_study.py``: the
+    methods' device halves, six scenes): on the lattice at 8 spp +0.11 dB on average over
+    the untested mean at 512x512 (-0.13 to +0.66) and +0.07 at 256x256 on other seeds
+    (-0.17 to +0.65; at 12 spp +0.04, -0.25 to +0.85); about 0 there it cost up to 0.58
+    dB. On independent samples at 8 spp +0.19 over the significance shrinkage (-0.15 to
+    +1.33), about the mode +0.12. From 16 spp it gained little or lost (independent +0.02
+    and +0.01 at 16 and 64 spp; the lattice's fence up to -1.0 at 16), so there the mean
+    stays as it was; below 8 spp the 2-standard-error test (:func:`bias_tests`) stays. The
+    guided chain keeps its own test (:data:`FDR_Q`)."""
+    h = min(halves(int(spp)))
+    return not guided and MIN_TEST_HALF <= h < SHRINK_HALF_END
+
+
 def vector_width(context: cl.Context) -> int:
     """Pixels a work-item of the window passes: 16 on a CPU (PoCL and Intel's runtime vectorise
     the explicit ``float16``), 1 elsewhere."""
@@ -112,14 +148,15 @@ def vector_width(context: cl.Context) -> int:
 
 class SafeguardPasses:
     """The kernels of ``kernels/safeguard.cl``, built for this context's vector width, and
-    ``kernels/safeguard_ratio.cl``'s and ``kernels/safeguard_fdr.cl``'s two each."""
+    ``kernels/safeguard_ratio.cl``'s two and ``kernels/safeguard_fdr.cl``'s three."""
 
     def __init__(self, context: cl.Context, vw: int | None = None):
         """``vw``: the vector width (1, 4, 8 or 16; default :func:`vector_width`)."""
         self.vw = vector_width(context) if vw is None else int(vw)
         if self.vw not in (1, 4, 8, 16):
             raise ValueError(f"safeguard: vector width {vw} is not 1, 4, 8 or 16")
-        defines = {"SG_VW": self.vw}
+        defines = {"SG_VW": self.vw, "FDR_BINS": FDR_BINS, "FDR_SCALE": FDR_SCALE,
+                   "FDR_MODE_RADIUS": FDR_MODE_RADIUS}
         self.split = get_kernel(context, "safeguard", "safeguard_split", defines)
         self.box_halves = get_kernel(context, "safeguard", "safeguard_box_halves", defines)
         self.stats = get_kernel(context, "safeguard", "safeguard_stats", defines)
@@ -127,9 +164,9 @@ class SafeguardPasses:
         self.blend = get_kernel(context, "safeguard", "safeguard_blend", defines)
         self.ratio_rows = get_kernel(context, "safeguard_ratio", "safeguard_ratio_rows")
         self.ratio = get_kernel(context, "safeguard_ratio", "safeguard_ratio")
-        fdr = {**defines, "FDR_BINS": FDR_BINS, "FDR_SCALE": FDR_SCALE}
-        self.fdr_rows = get_kernel(context, "safeguard_fdr", "safeguard_fdr_rows", fdr)
-        self.fdr = get_kernel(context, "safeguard_fdr", "safeguard_fdr", fdr)
+        self.fdr_rows = get_kernel(context, "safeguard_fdr", "safeguard_fdr_rows", defines)
+        self.fdr = get_kernel(context, "safeguard_fdr", "safeguard_fdr", defines)
+        self.fdr_shrink = get_kernel(context, "safeguard_fdr", "safeguard_fdr_shrink", defines)
         #: the variances' factor where it is not measured: 1 (independent samples)
         self.one = cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                              hostbuf=np.ones(1, np.float32))
@@ -220,31 +257,50 @@ class SafeguardPasses:
         covariance of the method's image and box, modelled as ``vm`` (``e = d2 + vm - vb``;
         :func:`models_covariance`). ``fdr = (hist, z, q)``: the 7x7 test's z is the frame's
         at false discovery rate ``q`` (:meth:`run_fdr`, its two launches between), not
-        ``z7``."""
+        ``z7``; ``q = None``: ``z`` is the frame's table of factors (:data:`FDR_BINS`
+        floats) that scale a positive 7x7 mean by its significance (:meth:`run_fdr`); a
+        fourth item, ``centre``, as :meth:`run_fdr` takes it."""
         ev = self.run_rows(queue, stats, rows, w, h, wait_for, vscale, cov)
         evs = [("safeguard_rows", ev)]
         if fdr is not None:
-            evs += [("safeguard_fdr", e) for e in self.run_fdr(queue, rows, *fdr, w, h, [ev])]
+            hist, z, q, *centre = fdr
+            evs += [("safeguard_fdr", e) for e in self.run_fdr(
+                queue, rows, hist, z, q, w, h, [ev], bool(centre and centre[0]))]
         return evs + [("safeguard_blend", self.run_blend_only(
             queue, rows, box, m, out, error, w, h, mode, write_error, [evs[-1][1]], z7, test3,
-            None if fdr is None else fdr[1]))]
+            None if fdr is None else fdr[1], 0 if fdr is None else 1 if fdr[2] else 2))]
 
-    def run_fdr(self, queue, rows, hist, z, q: float, w, h, wait_for=None):
-        """``z`` (one float): the lowest z at which the frame's 7x7 bias means pass at false
-        discovery rate ``q`` (Benjamini-Hochberg over the pixels' ``mu7 / se7``, to
-        1 / FDR_SCALE), from the row segments; ``hist``: :meth:`fdr_bytes`. Two launches,
-        their events in order."""
+    def run_fdr(self, queue, rows, hist, z, q: float | None, w, h, wait_for=None,
+                centre: bool = False):
+        """From the row segments, the frame's histogram of its pixels' 7x7 bias means' ``|z|
+        = |mu7| / se7`` by sign (``hist``: :meth:`fdr_bytes`), then ``z``: with ``q`` (the
+        guided chain's test), one float, the lowest z at which the frame's means pass at
+        false discovery rate ``q`` (Benjamini-Hochberg, to 1 / FDR_SCALE); with ``q =
+        None`` (a method's own blend at 8-15 spp: :func:`shrinks_by_frame`), the table of
+        :data:`FDR_BINS` factors ``1 - q-value``, the frame's negative means counting its
+        noise (:func:`~clrecon.methods.safeguard_reference.fdr_shrink_table`), mirrored
+        about the frame's mode of z with ``centre``. Two launches, their events in order."""
         self.fdr_rows.set_args(rows, hist, np.int32(w), np.int32(h),
-                               np.int32(self.rows_pitch(w)))
+                               np.int32(self.rows_pitch(w)), np.int32(q is None))
         ev = cl.enqueue_nd_range_kernel(queue, self.fdr_rows, (int(h),), None,
                                         wait_for=wait_for)
-        self.fdr.set_args(hist, np.int32(h), np.int32(w * h), np.float32(q), z)
-        return [ev, cl.enqueue_nd_range_kernel(queue, self.fdr, (1,), None, wait_for=[ev])]
+        if q is None:
+            self.fdr_shrink.set_args(hist, np.int32(h), np.int32(bool(centre)), z)
+            k = self.fdr_shrink
+        else:
+            self.fdr.set_args(hist, np.int32(h), np.int32(w * h), np.float32(q), z)
+            k = self.fdr
+        return [ev, cl.enqueue_nd_range_kernel(queue, k, (1,), None, wait_for=[ev])]
 
     @staticmethod
     def fdr_bytes(height: int) -> int:
-        """Bytes of :meth:`run_fdr`'s histogram."""
-        return int(height) * FDR_BINS * 4
+        """Bytes of :meth:`run_fdr`'s histogram (two halves of :data:`FDR_BINS` a row)."""
+        return int(height) * 2 * FDR_BINS * 4
+
+    @staticmethod
+    def fdr_table_bytes(q: float | None) -> int:
+        """Bytes of :meth:`run_fdr`'s ``z``: one float with ``q``, the table without."""
+        return 4 if q is not None else FDR_BINS * 4
 
     def run_rows(self, queue, stats, rows, w, h, wait_for=None, vscale=None, cov=False):
         """The windowed sums' row segments alone (``vscale``, ``cov`` as for
@@ -257,15 +313,18 @@ class SafeguardPasses:
                                           wait_for=wait_for)
 
     def run_blend_only(self, queue, rows, box, m, out, error, w, h, mode, write_error,
-                       wait_for=None, z7: float = 0.0, test3: bool = True, zfdr=None):
+                       wait_for=None, z7: float = 0.0, test3: bool = True, zfdr=None,
+                       fdr_mode: int = 1):
         """The blend from row segments already computed (the same weights for any box and
         m: the guided refinement blends each half with them). ``out`` may be ``box`` or
         ``m`` (a work-item reads them at its own pixels only). ``zfdr``: :meth:`run_fdr`'s
-        z, read in place of ``z7``."""
+        ``z``: with ``fdr_mode`` 1 the z read in place of ``z7``, with 2 the table of
+        factors (``z7`` unused)."""
         rp = self.rows_pitch(w)
         self.blend.set_args(rows, box, m, out, error, np.int32(w), np.int32(h), np.int32(rp),
                             np.int32(mode), np.int32(write_error), np.float32(z7),
-                            np.int32(bool(test3)), np.int32(zfdr is not None),
+                            np.int32(bool(test3)),
+                            np.int32(0 if zfdr is None else fdr_mode),
                             self.one if zfdr is None else zfdr)
         return cl.enqueue_nd_range_kernel(queue, self.blend, (rp // self.vw, h), None,
                                           wait_for=wait_for)

@@ -9,6 +9,7 @@ import numpy as np
 
 from clrecon.methods.safeguard_passes import (
     FDR_BINS,
+    FDR_MODE_RADIUS,
     FDR_SCALE,
     halves,
     measures_convergence,
@@ -82,16 +83,73 @@ def fdr_threshold(mu7: np.ndarray, var7: np.ndarray, q: float) -> float:
     return top
 
 
+def _z_bins(mu7: np.ndarray, var7: np.ndarray) -> np.ndarray:
+    """Each pixel's bin of ``|z| = |mu7| / se7`` (``fdr_bin`` of kernels/safeguard_vec.h;
+    ``se7 = 0``: the last)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(var7 > 0, np.abs(mu7) / np.sqrt(np.where(var7 > 0, var7, 1.0)), np.inf)
+    return np.where(z < FDR_BINS / FDR_SCALE, np.floor(z * FDR_SCALE),
+                    FDR_BINS - 1).astype(np.int64)
+
+
+def fdr_shrink_table(mu7: np.ndarray, var7: np.ndarray, noisy=None,
+                     centre: bool = False) -> np.ndarray:
+    """The factors ``1 - q`` by bin of ``|z|`` (``kernels/safeguard_fdr.cl``:
+    ``safeguard_fdr_shrink``): ``q_j = min over i <= j of min(1, N(t_i) / R(t_i))``, ``R(t)``
+    the pixels with ``mu7 > 0`` and ``|z| >= t``, ``N(t)`` those with ``mu7 < 0`` and ``|z|
+    >= t`` (1 where ``R(t) = 0``): the frame's false discovery rate with its negative means
+    as the null. ``centre``: the null mirrored about the frame's mode of ``z`` (the first
+    signed bin where its +-:data:`FDR_MODE_RADIUS` bins' counts weighted by a triangle peak),
+    not 0.
+    ``noisy``: the pixels that count (None: all; the blend's, those whose 7x7 window of box
+    shows noise: ``safeguard_fdr_rows``' ``noisy_only``)."""
+    j = _z_bins(mu7, var7)
+    if noisy is not None:
+        mu7 = np.where(noisy, mu7, 0.0)
+    b = FDR_BINS
+    # the kernels' layout: |z|'s bins of the positive means, then of the negative ones
+    return shrink_table_of(np.concatenate([np.bincount(j[mu7 > 0], minlength=b),
+                                           np.bincount(j[mu7 < 0], minlength=b)]), centre)
+
+
+def shrink_table_of(hist: np.ndarray, centre: bool) -> np.ndarray:
+    """:func:`fdr_shrink_table` from the frame's histogram as ``safeguard_fdr_rows`` lays it
+    out, summed over rows (2 FDR_BINS counts: ``|z|``'s bins of the positive means, then of
+    the negative ones)."""
+    b = FDR_BINS
+    hist = np.asarray(hist, np.int64)
+    sc = np.concatenate([hist[b:][::-1], hist[:b]])  # signed bins: z from -b / FDR_SCALE up
+    m = 2 * b - 1
+    if centre:
+        r = FDR_MODE_RADIUS
+        win = np.convolve(sc, r + 1 - np.abs(np.arange(-r, r + 1)))  # a triangle
+        m = 2 * int(np.argmax(win[FDR_MODE_RADIUS:FDR_MODE_RADIUS + 2 * b]))
+    below = np.concatenate([[0], np.cumsum(sc)])  # below[i]: the bins < i
+    top = np.arange(b)
+    pos = below[2 * b] - below[b + top]
+    neg = below[np.clip(m - b - top + 1, 0, 2 * b)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fdr = np.where(pos > 0, np.minimum(1.0, neg / np.maximum(pos, 1)), 1.0)
+    return 1.0 - np.minimum.accumulate(fdr)
+
+
+def fdr_shrink(mu7: np.ndarray, var7: np.ndarray, noisy=None, centre: bool = False):
+    """``mu7`` scaled by its bin's factor (:func:`fdr_shrink_table`) where positive, else 0."""
+    t = fdr_shrink_table(mu7, var7, noisy, centre)
+    return np.where(mu7 > 0, mu7 * t[_z_bins(mu7, var7)], 0.0)
+
+
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
               z7: float = 0.0, test3: bool = True, cov: bool | None = None,
-              vscale: float | None = None, fdr_q: float | None = None):
+              vscale: float | None = None, fdr_q: float | None = None,
+              frame_shrink: bool = False, centre: bool = False):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
     The halves' variances are scaled by ``vscale`` (None: :func:`variance_scale`, the
     frame's measured factor; 1: declared independent samples); ``cov`` (None: from 16 spp,
     as the pipeline: ``safeguard_passes.models_covariance``) and ``fdr_q`` as for
-    :func:`reference_of_halves`."""
+    :func:`reference_of_halves`, and ``frame_shrink`` and ``centre``."""
     s = color.shape[2]
     ha, hb = halves(s)
     if m is None and ma is not None:
@@ -100,12 +158,13 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
     cov = models_covariance(s) if cov is None else bool(cov)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
                                mode, z7, variance_scale(c) if vscale is None else vscale,
-                               test3, cov, fdr_q)[:2]
+                               test3, cov, fdr_q, frame_shrink, centre)[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
                         mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0,
-                        test3: bool = True, cov: bool = False, fdr_q: float | None = None):
+                        test3: bool = True, cov: bool = False, fdr_q: float | None = None,
+                        frame_shrink: bool = False, centre: bool = False):
     """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
     ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
     half estimates, as the guided refinement's blend toward its guide takes) and the
@@ -118,7 +177,10 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     ``test3=False``: the bias term leaves the 3x3 test out (``safeguard_passes.bias_tests``).
     ``cov``: the covariance of the method's image and box added back, modelled as ``vm``:
     ``e = d2 + vm - vb`` (``safeguard_passes.models_covariance``). ``fdr_q``: the 7x7 test's
-    z is :func:`fdr_threshold`'s at that rate (the guided chain), not ``z7``."""
+    z is :func:`fdr_threshold`'s at that rate (the guided chain), not ``z7``.
+    ``frame_shrink``: the 7x7 mean scaled by the frame's q-value (:func:`fdr_shrink`; a
+    method's own blend at 8-15 spp), ``z7`` unused; ``centre``: its null mirrored about the
+    frame's mode (stratified samples)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     s = ha + hb
     box = (ha * a + hb * b) / s
@@ -137,7 +199,11 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     n3 = _window_count(e.shape, 1)
     se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
     mu7 = _window_mean(e, 3)
-    if z7 != 0 or fdr_q is not None:
+    if frame_shrink:
+        n7 = _window_count(e.shape, 3)
+        mu7 = fdr_shrink(mu7, np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7,
+                         _window_mean(vb, 3) > 0, centre)
+    elif z7 != 0 or fdr_q is not None:
         n7 = _window_count(e.shape, 3)
         var7 = np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7
         z7 = z7 if fdr_q is None else fdr_threshold(mu7, var7, fdr_q)

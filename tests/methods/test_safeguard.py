@@ -15,7 +15,7 @@ from clrecon.core.camera import CocModel
 from clrecon.core.pipeline import DeviceSamples
 from clrecon.core.samples import SampleBuffer
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_passes import bias_tests
+from clrecon.methods.safeguard_passes import bias_tests, shrinks_by_frame
 
 
 def _half(buf: SampleBuffer, sl: slice) -> SampleBuffer:
@@ -40,8 +40,9 @@ def _expected(buf, method, device, mode):
     if mode == sg.MODE_BLEND and METHODS[method].halves_mean:
         m = None
     test7, test3 = bias_tests(False, buf.spp)  # below 8 spp the 7x7 mean is tested
+    shrink = shrinks_by_frame(False, buf.spp)  # at 8-15 spp scaled by the frame's q-value
     return sg.reference(buf.color, m, ma, mb, mode=mode, z7=sg.GUIDED_Z7 if test7 else 0.0,
-                        test3=test3)
+                        test3=test3, frame_shrink=shrink, centre=True)
 
 
 def _shared_halves(buf, halves, method, device):
@@ -69,7 +70,7 @@ def _shared_halves(buf, halves, method, device):
 
 
 @pytest.mark.parametrize("method", ["sweep", "layered", "splat"])
-@pytest.mark.parametrize("spp", [4, 5, 16, 17])
+@pytest.mark.parametrize("spp", [4, 5, 8, 12, 16, 17])
 def test_blend_and_error_match_reference(device, method, spp):
     buf = frame(np.random.default_rng(spp), h=13, w=17, s=spp)
     got = run(buf, method=method, device=device, estimate_error=True)
@@ -82,10 +83,11 @@ def test_blend_and_error_match_reference(device, method, spp):
 
 @pytest.mark.parametrize("spp", [5, 8, 16])
 def test_independent_samples_declared(device, spp):
-    """``independent_samples=True``: from 8 spp the untested 7x7 bias mean shrunk by its
-    significance (the reference's ``z7 < 0``), from 16 spp no measured convergence (the
-    halves' variances as they are: no ``safeguard_ratio``); below 8 spp the tested mean as
-    before, bit for bit; described; a pipeline without halves takes it and changes nothing."""
+    """``independent_samples=True``: at 8-15 spp the 7x7 bias mean scaled by the frame's
+    q-value (``frame_shrink``), from 16 spp shrunk by its significance (the reference's
+    ``z7 < 0``) with no measured convergence (the halves' variances as they are: no
+    ``safeguard_ratio``); below 8 spp the tested mean as before, bit for bit; described; a
+    pipeline without halves takes it and changes nothing."""
     buf = frame(np.random.default_rng(30 + spp), h=13, w=17, s=spp)
     got = run(buf, method="sweep", device=device, estimate_error=True,
               independent_samples=True)
@@ -101,8 +103,11 @@ def test_independent_samples_declared(device, spp):
     ha, _ = sg.halves(spp)
     halves = [_half(buf, slice(0, ha)), _half(buf, slice(ha, None))]
     ma, mb = (run(h, method="sweep", device=device, safeguard=False).image for h in halves)
+    shrink = spp < 16  # safeguard_passes.shrinks_by_frame: its null about 0, not the mode
+    for r in (got, plain):
+        assert r.method["safeguard_bias_tests"]["7x7 by the frame's q-value"] == shrink
     img, err = sg.reference(buf.color, None, ma, mb, mode=sg.MODE_BLEND, z7=sg.SHRINK_Z7,
-                            vscale=1.0)
+                            vscale=1.0, frame_shrink=shrink)
     scale = float(np.abs(img).max())
     assert_close(got.image, img, rtol=1e-4, atol=1e-5 * scale, what="image")
     assert_close(got.error, err, rtol=1e-3, atol=1e-6 * scale ** 2, what="error")
@@ -258,6 +263,7 @@ def test_halves_mean_skips_the_run_on_the_frame(device, method):
 
 
 @pytest.mark.parametrize("spp, guided, t7, t3", [(4, 0, True, True), (8, 0, False, True),
+                                                 (16, 0, False, True),
                                                  (5, 2, True, False), (8, 2, True, False),
                                                  (32, 2, True, True)])
 def test_describe_names_the_bias_tests(device, spp, guided, t7, t3):
@@ -267,4 +273,8 @@ def test_describe_names_the_bias_tests(device, spp, guided, t7, t3):
     buf = frame(np.random.default_rng(spp), h=12, w=13, s=spp)
     got = run(buf, method="splat", device=device, guided=guided)
     at = f"FDR {sg.FDR_Q}" if guided else "2 se"  # the chain: its frame's z (safeguard_fdr)
-    assert got.method["safeguard_bias_tests"] == {f"7x7 at {at}": t7, "3x3 at 2 se": t3}
+    want = {f"7x7 at {at}": t7, "3x3 at 2 se": t3}
+    # a method's own blend: whether the frame's q-value scales its 7x7 mean (8-15 spp:
+    # safeguard_passes.shrinks_by_frame)
+    want |= {} if guided else {"7x7 by the frame's q-value": 8 <= spp < 16}
+    assert got.method["safeguard_bias_tests"] == want

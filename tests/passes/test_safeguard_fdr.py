@@ -1,7 +1,9 @@
-"""The guided chain's 7x7 bias test at a false discovery rate (``kernels/safeguard_fdr.cl``
-through :class:`clrecon.methods.safeguard_passes.SafeguardPasses`): the NumPy reference's
-threshold against known answers and the exact Benjamini-Hochberg procedure, the kernels'
-threshold against the reference's, and the blend reading it."""
+"""The 7x7 bias mean judged against the frame (``kernels/safeguard_fdr.cl`` through
+:class:`clrecon.methods.safeguard_passes.SafeguardPasses`): the guided chain's test at a
+false discovery rate (the NumPy reference's threshold against known answers and the exact
+Benjamini-Hochberg procedure, the kernels' threshold against the reference's, and the blend
+reading it) and a method's own blend's mean scaled by the frame's q-value (the reference's
+table against known answers, the kernels' table and image against the reference's)."""
 from __future__ import annotations
 
 import math
@@ -18,8 +20,11 @@ from clrecon.methods.safeguard_reference import (
     _lum2,
     _window_count,
     _window_mean,
+    fdr_shrink,
+    fdr_shrink_table,
     fdr_threshold,
     halves,
+    shrink_table_of,
 )
 
 TOP = FDR_BINS / FDR_SCALE
@@ -77,7 +82,7 @@ def _frame(rng, h, w, s, strength):
 
 
 def _mu_var(color, m, ma, mb):
-    """The 7x7 bias mean and its squared standard error as the blend computes them (5 spp:
+    """The 7x7 bias mean and its squared standard error as the blend computes them (below 16 spp:
     no covariance term, the halves' variances unscaled)."""
     c = color.astype(np.float64)
     ha, hb = halves(c.shape[2])
@@ -89,8 +94,10 @@ def _mu_var(color, m, ma, mb):
     return mu7, np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / _window_count(e.shape, 3)
 
 
-def _device(device, vw, color, m, ma, mb):
-    """(z, image) of the passes as the chain's blend runs them."""
+def _device(device, vw, color, m, ma, mb, shrink=False, centre=False):
+    """(z, image) of the passes as the chain's blend runs them; ``shrink``: (table, image,
+    the frame's histogram) as a method's own blend at 8-15 spp runs them (the 3x3 test
+    kept; ``centre``: the null about the frame's mode)."""
     ctx, q = device.context, device.queue
     h, w, s, _ = color.shape
     passes, mf = SafeguardPasses(ctx, vw), cl.mem_flags
@@ -106,12 +113,20 @@ def _device(device, vw, color, m, ma, mb):
     rows = up(np.full(passes.rows_bytes(w, h) // 4, np.nan))
     # the histogram starts as garbage: each row's pass must clear its own
     hist = up(np.full(passes.fdr_bytes(h) // 4, 7, np.int32).view(np.float32))
-    z = up(np.full(1, np.nan))
+    fq = None if shrink else sg.FDR_Q
+    z = up(np.full(passes.fdr_table_bytes(fq) // 4, np.nan))
     ev = passes.run_stats(q, bufs["color"], bufs["m"], bufs["ma"], bufs["mb"], box, stats,
                           w, h, s, 1)
     passes.run_blend(q, stats, rows, box, bufs["m"], out, err, w, h, sg.MODE_BLEND, 1, [ev],
-                     sg.GUIDED_Z7, None, False, False, (hist, z, sg.FDR_Q))[-1][1].wait()
-    zs, img = np.empty(1, np.float32), np.empty((h, w, 3), np.float32)
+                     sg.GUIDED_Z7, None, shrink, False, (hist, z, fq, centre))[-1][1].wait()
+    img = np.empty((h, w, 3), np.float32)
+    if shrink:
+        table, total = np.empty(FDR_BINS, np.float32), np.empty(2 * FDR_BINS, np.int32)
+        cl.enqueue_copy(q, table, z)
+        cl.enqueue_copy(q, total, hist)  # the rows' sums, in the first row
+        cl.enqueue_copy(q, img, out)
+        return table, img, total
+    zs = np.empty(1, np.float32)
     cl.enqueue_copy(q, zs, z)
     cl.enqueue_copy(q, img, out)
     return float(zs[0]), img
@@ -136,3 +151,85 @@ def test_kernels_match_reference(device, vw, w, strength):
     if strength:  # the frame's z, not the fixed one: the case tells a blend that ignores it
         fixed, _ = sg.reference(*f32, z7=sg.GUIDED_Z7, test3=False, vscale=1.0)
         assert np.abs(fixed - want).max() > 1e-3 * float(np.abs(want).max())
+
+
+def test_shrink_table_known_answers():
+    """``1 - q``, ``q`` the least ``N(t) / R(t)`` at or below each bin: 100 noise pixels on
+    each side at |z| 0.5 and 50 biased at z 5 give q = 100 / 150 from 0 to 0.5, then 0
+    (R = 50, N = 0) up to 5 and beyond (R = 0 there: 1, but the least below is 0)."""
+    mu = np.array([0.5] * 100 + [-0.5] * 100 + [5.0] * 50)
+    table = fdr_shrink_table(mu, np.ones_like(mu))
+    edge = int(0.5 * FDR_SCALE)  # the bin that holds |z| = 0.5
+    assert np.allclose(table[:edge + 1], 1 - 100 / 150)
+    assert np.all(table[edge + 1:] == 1.0)
+    # noise alone (as many negative as positive at every |z|): every positive mean is 0
+    mu = np.random.default_rng(1).normal(size=4000)
+    mu = np.concatenate([mu, -mu])
+    assert np.all(fdr_shrink(mu, np.ones_like(mu)) == 0.0)
+    # no negative mean: nothing is noise, every positive mean as it is
+    mu = np.abs(mu) + 0.01
+    assert np.array_equal(fdr_shrink(mu, np.ones_like(mu)), mu)
+    # the negative means of windows without noise do not count
+    neg = np.concatenate([mu, -mu])
+    quiet = np.arange(neg.size) >= mu.size
+    assert np.array_equal(fdr_shrink(neg, np.ones_like(neg), ~quiet)[~quiet], mu)
+    # a factor never rises as |z| falls, and lies in [0, 1]
+    mu = np.random.default_rng(2).normal(0.5, 1.0, 5000)
+    t = fdr_shrink_table(mu, np.ones_like(mu))
+    assert np.all(np.diff(t) >= 0) and t.min() >= 0.0 and t.max() <= 1.0 and t.max() > 0.5
+
+
+def test_shrink_table_centred_known_answers():
+    """Mirrored about the frame's mode (``centre``) or about 0, on z at the signed bins'
+    centres: 200 pixels at the mode (z -0.98), 100 at 2 below it (-2.98), 100 at 2 above
+    (+1.02: their mirror image) and 50 at +5.02. About the mode, the 100 above are noise as
+    likely as not against 150 positive: 1/3 up to their bin, 1 beyond; about 0 the 200 at
+    the mode outnumber every positive below 1: 0 there."""
+    def at(k, n):  # n pixels at signed bin k's centre
+        return [(k - FDR_BINS + 0.5) / FDR_SCALE] * n
+    mode = FDR_BINS - 32
+    mu = np.array(at(mode, 200) + at(mode - 64, 100) + at(mode + 64, 100) + at(FDR_BINS + 160,
+                                                                               50))
+    one = np.ones_like(mu)
+    centred, zero = fdr_shrink_table(mu, one, centre=True), fdr_shrink_table(mu, one)
+    assert np.allclose(centred[:33], 1 / 3) and np.all(centred[33:] == 1.0)
+    assert np.all(zero[:32] == 0.0) and np.allclose(zero[32:96], 1 / 3)
+    assert np.all(zero[96:] == 1.0)
+
+
+@pytest.mark.parametrize("centre", [False, True])
+@pytest.mark.parametrize("vw", [1, 16])
+@pytest.mark.parametrize("w, strength", [(37, 0.6), (64, 1.2), (33, 0.0)])
+def test_shrink_kernels_match_reference(device, vw, w, strength, centre):
+    rng = np.random.default_rng(3 * w + vw)
+    color, m, ma, mb = _frame(rng, 40, w, 8, strength)
+    # a block without noise (every sample alike) whose means are rounding: not counted
+    color[-12:, :12] = 0.3
+    ma[-12:, :12] = mb[-12:, :12] = m[-12:, :12] = 0.3 + 1e-7 * rng.random((12, 12, 3))
+    table, img, total = _device(device, vw, color, m, ma, mb, shrink=True, centre=centre)
+    # the table from the kernels' own histogram, exactly (float32 against float64)
+    assert np.allclose(table, shrink_table_of(total, centre), rtol=0, atol=2e-7)
+    f32 = [x.astype(np.float32) for x in (color, m, ma, mb)]
+    mu7, var7 = _mu_var(*f32)
+    c = f32[0].astype(np.float64)
+    noisy = _window_mean(_lum2(c[:, :, :4].mean(2) - c[:, :, 4:].mean(2)), 3) > 0
+    assert not noisy.all()
+    want_t = fdr_shrink_table(mu7, var7, noisy, centre)
+    # float32 sums against float64 ones: a pixel at a bin's edge may fall either side
+    j = np.minimum(np.floor(np.abs(mu7) / np.sqrt(var7) * FDR_SCALE), FDR_BINS - 1)
+    want_h = [np.bincount(j[sel & noisy].astype(int), minlength=FDR_BINS)
+              for sel in (mu7 > 0, mu7 < 0)]
+    assert np.abs(total - np.concatenate(want_h)).sum() <= 4
+    if not np.array_equal(total, np.concatenate(want_h)):
+        return  # a moved count may move the mode: the table from the kernels' is checked
+    assert np.abs(table - want_t).max() <= 1e-6
+    want, _ = sg.reference(*f32, test3=True, vscale=1.0, frame_shrink=True, centre=centre)
+    if strength:  # the biased patch keeps its mean: the factors at its z are near 1
+        assert want_t[-1] > 0.9
+    scale = float(np.abs(want).max())
+    bad = np.abs(img - want).max(-1) > 1e-4 * scale  # pixels at a bin's edge, if any
+    assert bad.mean() < 0.02, bad.mean()
+    assert_close(img[~bad], want[~bad], rtol=1e-4, atol=1e-5 * scale, what=f"vw={vw} w={w}")
+    if strength and not centre:  # the frame's factors, not the untested mean
+        untested, _ = sg.reference(*f32, test3=True, vscale=1.0)
+        assert np.abs(untested - want).max() > 1e-3 * scale

@@ -193,6 +193,16 @@ def test_bias_tests_rule():
         assert bias_tests(True, s) == (True, s >= 32), s
 
 
+def test_shrinks_by_frame_rule():
+    """The frame's q-value scales a method's own 7x7 mean with halves of 4-7 samples (8-15
+    spp; 15 spp's are 7 and 8), never the guided chain's."""
+    from clrecon.methods.safeguard_passes import SHRINK_HALF_END, shrinks_by_frame
+    assert SHRINK_HALF_END == 8
+    for s in range(2, 70):
+        assert shrinks_by_frame(False, s) == (8 <= s < 16), s
+        assert not shrinks_by_frame(True, s)
+
+
 @pytest.mark.parametrize("s", [5, 16])
 @pytest.mark.parametrize("mode", [sg.MODE_METHOD, sg.MODE_BLEND])
 @pytest.mark.parametrize("vw", [1, 16])

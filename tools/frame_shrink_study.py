@@ -1,0 +1,122 @@
+"""The 7x7 bias mean scaled by the frame's q-value, against the other forms a method's own
+blend can take, on the methods' device halves (issue 13).
+
+Each scene is rendered at each spp (``render_samples(seed=SEED + spp)``, ``--seed``
+default 100, the lattice or
+independent samples); every method's default runs on the device and its halves' images
+``mA``, ``mB`` are read back; the blend is then recomputed on the host in float64 by the
+safeguard's NumPy reference (``clrecon.methods.safeguard_reference``) with the 7x7 mean:
+
+* ``untested``: as it comes (the lattice's form from 8 spp);
+* ``2 se``: tested at 2 standard errors (every form below 8 spp);
+* ``shrink``: shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)`` (independent
+  samples declared, from 16 spp);
+* ``q about 0``: scaled by ``1 - q``, ``q`` the frame's false discovery rate at the mean's
+  significance with its negative means as the null, mirrored about 0 (independent samples
+  declared, 8-15 spp: ``safeguard_passes.shrinks_by_frame``);
+* ``q about mode``: the same with the null mirrored about the frame's mode of ``z``
+  (stratified samples, 8-15 spp).
+
+The halves' variances are scaled as the pipeline scales them: the lattice's by its measured
+convergence from 16 spp, independent samples' not at all. PSNR dB against the converged
+reference; each form's change against the first in brackets, and the mean, least and most
+change per spp at the end. Nothing here is fitted to the scenes.
+Run: ``python tools/frame_shrink_study.py [--size 512] [--spp 8,16,64] [--sampler random]``.
+"""
+from __future__ import annotations
+
+import argparse
+from datetime import datetime, timezone
+
+import numpy as np
+from safeguard_variants import METHODS, halves_images
+
+import clrecon.api  # noqa: F401  (registers the methods)
+from clrecon.bench.scripts import emit_page
+from clrecon.core.device import get_device
+from clrecon.methods import safeguard as sg
+from clrecon.methods.safeguard_passes import bias_tests, models_covariance, shrinks_by_frame
+from clrecon.methods.safeguard_reference import halves, reference_of_halves, variance_scale
+from clrecon.metrics import psnr
+from clrecon.scenes.builtin import get_scene
+from clrecon.scenes.render import render_reference, render_samples
+
+SCENES = "fence,spheres,bokeh,deep,huge_coc,fast_motion"
+FORMS = {"untested": {}, "2 se": {"z7": sg.GUIDED_Z7}, "shrink": {"z7": sg.SHRINK_Z7},
+         "q about 0": {"frame_shrink": True}, "q about mode": {"frame_shrink": True,
+                                                              "centre": True}}
+
+
+def pipeline_form(spp: int) -> str:
+    """The form a method's own blend takes on stratified samples (``bias_tests``,
+    ``shrinks_by_frame``)."""
+    return "2 se" if bias_tests(False, spp)[0] else (
+        "q about mode" if shrinks_by_frame(False, spp) else "untested")
+
+
+def measure(name: str, size: int, spp: int, sampler: str, forms, dev, ref, seed: int):
+    """{method: {form: PSNR}} and box's PSNR for one frame. On the lattice the form the
+    pipeline takes is checked against the device's own image (to 0.02 dB)."""
+    buf = render_samples(get_scene(name), size, size, spp, seed=seed + spp, device=dev,
+                         sampler=sampler)
+    c = buf.color.astype(np.float64)
+    ha, hb = halves(spp)
+    a, b = c[:, :, :ha].mean(2), c[:, :, ha:].mean(2)
+    vscale = 1.0 if sampler == "random" else variance_scale(c)
+    out = {}
+    for method in METHODS:
+        imgs = halves_images(dev, buf, method)
+        if imgs is None:
+            continue
+        got, ma, mb = imgs
+        out[method] = row = {f: psnr(reference_of_halves(
+            a, b, ha, hb, None, ma, mb, sg.MODE_BLEND, vscale=vscale,
+            cov=models_covariance(spp), **FORMS[f])[0].astype(np.float32), ref) for f in forms}
+        own = pipeline_form(spp)
+        if sampler == "lattice" and own in row and abs(row[own] - psnr(got, ref)) > 0.02:
+            raise AssertionError(f"{name} {spp} {method}: the host's {own!r} gives "
+                                 f"{row[own]:.3f} dB, the device {psnr(got, ref):.3f}")
+    return out, psnr(buf.color.mean(2).astype(np.float32), ref)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", default=SCENES)
+    ap.add_argument("--size", type=int, default=512)
+    ap.add_argument("--spp", default="8,16,64")
+    ap.add_argument("--sampler", choices=("lattice", "random"), default="random")
+    ap.add_argument("--seed", type=int, default=100, help="samples: seed + spp")
+    ap.add_argument("--forms", default="shrink,q about 0,q about mode,untested,2 se")
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    forms = args.forms.split(",")
+    dev = get_device(None)
+    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    lines = [f"# The 7x7 bias mean's forms ({args.size}x{args.size}, {args.sampler})", "",
+             f"`python tools/frame_shrink_study.py --size {args.size} --spp {args.spp} "
+             f"--sampler {args.sampler} --seed {args.seed} --forms '{args.forms}'` on "
+             f"{dev.info.label}, {stamp}; PSNR dB; each form's change against `{forms[0]}` "
+             "in brackets.", "",
+             "| scene | spp | box | method | " + " | ".join(forms) + " |",
+             "|---|---|---|---|" + "---|" * len(forms)]
+    change = {}
+    for name in args.scenes.split(","):
+        ref = render_reference(get_scene(name), args.size, args.size)  # the trusted device's
+        for spp in (int(s) for s in args.spp.split(",")):
+            res, box = measure(name, args.size, spp, args.sampler, forms, dev, ref, args.seed)
+            for method, row in res.items():
+                first = row[forms[0]]
+                for f in forms[1:]:
+                    change.setdefault((spp, f), []).append(row[f] - first)
+                lines.append(f"| {name} | {spp} | {box:.2f} | {method} | {first:.2f} | "
+                             + " | ".join(f"{row[f]:.2f} ({row[f] - first:+.2f})"
+                                          for f in forms[1:]) + " |")
+            print(f"{name} {spp}: done", flush=True)
+    lines += ["", "| spp | form | mean change | least | most |", "|---|---|---|---|---|"]
+    lines += [f"| {spp} | {f} | {np.mean(d):+.3f} | {min(d):+.2f} | {max(d):+.2f} |"
+              for (spp, f), d in sorted(change.items())]
+    emit_page(lines, args.out)
+
+
+if __name__ == "__main__":
+    main()
