@@ -21,8 +21,9 @@
  *                         R(t) positive ones at least as significant are noise too (the
  *                         frame's false discovery rate with its null read off the frame
  *                         itself, as a q-value); with centre, the null mirrored about the
- *                         frame's mode of z instead of 0 (N(t): z <= 2 mode - t): where the
- *                         halves overstate the variance, the noise's means centre below 0.
+ *                         frame's mode of z, if below 0, instead of 0 (N(t): z <= 2 mode -
+ *                         t): where the halves overstate the variance, the noise's means
+ *                         centre below 0.
  *                         The blend scales a positive mu7 by its bin's factor
  * Arguments: rows, the nine row-segment planes of safeguard_rows (pitch rp, a multiple of
  * SG_VW: kernels/safeguard_vec.h, the host's vector width); hist (H, 2 FDR_BINS) ints; z
@@ -143,6 +144,9 @@ __kernel void safeguard_fdr_shrink(__global int *hist, int height, int centre,
                 m = 2 * k;
             }
         }
+        /* never above 0: a bias only adds to a mean, so a mode above 0 is the biased
+         * pixels', not the noise's */
+        m = min(m, 2 * FDR_BINS - 1);
     }
     /* R(t_j): the bins k >= FDR_BINS + j; N(t_j): the bins k <= m - FDR_BINS - j, counted
      * as j falls from the top */

@@ -81,9 +81,9 @@ from clrecon.methods.safeguard_reference import MODE_METHOD as MODE_METHOD
 from clrecon.methods.safeguard_reference import reference as reference
 from clrecon.methods.safeguard_reference import reference_of_halves as reference_of_halves
 
-#: below 8 spp every blend tests its 7x7 bias mean at 2 standard errors (bias_tests);
-#: ``independent_samples=True`` from 16 spp shrinks it by its significance (z7 < 0 in
-#: kernels/safeguard.cl; docs/measurements/sampler-random-pocl.md)
+#: below 8 spp every blend tests its 7x7 bias mean at 2 standard errors, declared
+#: independent samples below 16 (bias_tests); from 16 spp those shrink it by its
+#: significance (z7 < 0 in kernels/safeguard.cl; docs/measurements/sampler-random-pocl.md)
 GUIDED_Z7, SHRINK_Z7 = 2.0, -1.0
 
 
@@ -229,7 +229,7 @@ class Safeguarded(Pipeline):
                               self._ratio_step()))
         # the 7x7 test at a false discovery rate (the chain) or the mean scaled by the
         # frame's q-value (8-15 spp): the frame's histogram
-        self.frame_shrink = shrinks_by_frame(bool(self.guided), info.spp)
+        self.frame_shrink = shrinks_by_frame(bool(self.guided), info.spp, self.independent)
         if self.guided or self.frame_shrink:
             q = FDR_Q if self.guided else None
             temps |= {"sg_fdr_hist": self.passes.fdr_bytes(info.height),
@@ -356,7 +356,7 @@ class Safeguarded(Pipeline):
         def run(queue, f, wait_for):
             b = f.buffers
             m = b["m"] if self.mode != MODE_BOX else b["box"]
-            t7, t3 = bias_tests(bool(self.guided), f.spp)
+            t7, t3 = bias_tests(bool(self.guided), f.spp, self.independent)
             return self.passes.run_blend(queue, b["stats"], b["rows"], b["box"], m,
                                          b["out"], b["error"], f.width, f.height, self.mode, 1,
                                          wait_for, GUIDED_Z7 if t7 else
@@ -364,7 +364,7 @@ class Safeguarded(Pipeline):
                                          b["sg_scale"] if self.scaled else None, t3,
                                          models_covariance(f.spp), (b["sg_fdr_hist"],
                                          b["sg_fdr_z"], FDR_Q if self.guided else None,
-                                         not self.independent)
+                                         True)
                                          if self.guided or self.frame_shrink else None)
         return run
 
@@ -381,15 +381,15 @@ class Safeguarded(Pipeline):
         if self.mode == MODE_BOX and self.inner_method != "box":
             d["safeguard_note"] = "the plan is box (no blur beyond the pixel): nothing to blend"
         d["estimate_error"] = True
-        t7, t3 = bias_tests(bool(self.guided), self.info.spp)  # the frame's spp: the plan's
+        t7, t3 = bias_tests(bool(self.guided), self.info.spp, self.independent)  # the plan's
         at = f"FDR {FDR_Q}" if self.guided else "2 se"
         d["safeguard_bias_tests"] = {f"7x7 at {at}": t7, "3x3 at 2 se": t3} | (
             {} if self.guided else {"7x7 by the frame's q-value": self.frame_shrink})
         said = {"safeguard_convergence": (self.scaled, "measured (the halves' variances "
                                           "scaled by it)"),
                 "safeguard_samples": (self.independent, "independent (declared): the halves' "
-                                      "variances as they are; from 16 spp the 7x7 bias "
-                                      "mean shrunk by its significance"),
+                                      "variances as they are; the 7x7 bias mean tested "
+                                      "below 16 spp, from 16 shrunk by its significance"),
                 "safeguard_covariance": (models_covariance(self.info.spp), "modelled as the "
                                          "method's variance (e = d2 + vm - vb)"),
                 "nlm_of": (self.box_halves, "box's own halves (the samples' means)"),

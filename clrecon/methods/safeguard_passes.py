@@ -86,14 +86,17 @@ def models_covariance(spp: int) -> bool:
     return measures_convergence(spp)
 
 
-def bias_tests(guided: bool, spp: int) -> tuple[bool, bool]:
+def bias_tests(guided: bool, spp: int, independent: bool = False) -> tuple[bool, bool]:
     """``(test7, test3)`` of the blend's bias term: whether its 7x7 mean must stand 2
     standard errors above zero (``safeguard.GUIDED_Z7``), and whether it keeps the 3x3 mean
     where that stands 2 standard errors above zero (a bias along a thin edge).
 
     From halves of :data:`MIN_TEST_HALF` samples (8 spp) a method's own halves take the
-    7x7 mean untested (at 8-15 spp scaled by the frame's q-value: :func:`shrinks_by_frame`);
-    below, the windows' means of 2-3-sample halves are mostly noise,
+    7x7 mean untested (at 8-15 spp scaled by the frame's q-value: :func:`shrinks_by_frame`).
+    Declared ``independent`` samples test it below 16 spp: at 8 spp +0.25 dB on average
+    over the significance shrinkage they take from 16 (-0.18 to +2.15; at 16 spp +0.11,
+    at 64 -0.19, ``docs/measurements/frame-shrink/random-512.md``). Below 8 spp the
+    windows' means of 2-3-sample halves are mostly noise,
     whose positive part pulls the image toward a box 10-20 dB worse, so every method tests
     its 7x7 mean (``docs/measurements/safeguard-lowspp-pocl.md``: the defaults +0.01 to
     +2.6 dB in 33 of 36 cells at 4 spp, 256x256 and 512x512). Every method's own blend
@@ -109,35 +112,35 @@ def bias_tests(guided: bool, spp: int) -> tuple[bool, bool]:
     with the lattice the 3x3 test earns its keep (fence +0.25, spheres +0.37, fast_motion
     +0.48 with it). Below 8 spp it was already left out."""
     h = min(halves(int(spp)))
-    return bool(guided) or h < MIN_TEST_HALF, not guided or h >= CHAIN_TEST3_HALF
+    test7 = bool(guided) or h < (SHRINK_HALF_END if independent else MIN_TEST_HALF)
+    return test7, not guided or h >= CHAIN_TEST3_HALF
 
 
-def shrinks_by_frame(guided: bool, spp: int) -> bool:
+def shrinks_by_frame(guided: bool, spp: int, independent: bool = False) -> bool:
     """Whether the blend scales its 7x7 bias mean by ``1 - q``, ``q`` the frame's false
     discovery rate at the mean's significance with the frame's negative means as its null
-    (``kernels/safeguard_fdr.cl``: ``safeguard_fdr_shrink``): a method's own blend with
-    halves of :data:`MIN_TEST_HALF` to :data:`SHRINK_HALF_END` - 1 samples (8-15 spp),
-    where it took the mean untested (and, declared independent, shrunk by its significance).
+    (``kernels/safeguard_fdr.cl``: ``safeguard_fdr_shrink``, ``centre``): a method's own
+    blend on stratified samples with halves of :data:`MIN_TEST_HALF` to
+    :data:`SHRINK_HALF_END` - 1 samples (8-15 spp), where it took the mean untested.
 
     A mean of ``e`` is negative by noise alone, so the frame's negative means tell how many
     of its positive ones at the same significance are noise: no model of the noise, no
     fitted constant; the blend's weight with ``(1 - q) mu7`` minimises the expected error
-    when ``q`` is the chance the mean is noise. The mirror is about 0 where ``e``'s noise is
-    centred there, on independent samples (``independent_samples=True``); on stratified
-    ones below 16 spp the halves overstate the variance (:func:`measures_convergence`), the
-    noise's means centre below 0 (the frame's mode of z: -0.1 to -1.1 on the built-in
-    scenes at 8 spp) and the mirror is about the frame's mode (``centre``). Measured
+    when ``q`` is the chance the mean is noise. Below 16 spp stratified samples' halves
+    overstate the variance (:func:`measures_convergence`), so the noise's means centre below
+    0 (the frame's mode of z: -0.1 to -1.1 on the built-in scenes at 8 spp) and the null is
+    mirrored about the frame's mode (never above 0: a bias only adds to a mean). Measured
     (``docs/measurements/frame-shrink-pocl.md``, ``tools/frame_shrink_study.py``: the
-    methods' device halves, six scenes): on the lattice at 8 spp +0.11 dB on average over
-    the untested mean at 512x512 (-0.13 to +0.66) and +0.07 at 256x256 on other seeds
-    (-0.17 to +0.65; at 12 spp +0.04, -0.25 to +0.85); about 0 there it cost up to 0.58
-    dB. On independent samples at 8 spp +0.19 over the significance shrinkage (-0.15 to
-    +1.33), about the mode +0.12. From 16 spp it gained little or lost (independent +0.02
-    and +0.01 at 16 and 64 spp; the lattice's fence up to -1.0 at 16), so there the mean
-    stays as it was; below 8 spp the 2-standard-error test (:func:`bias_tests`) stays. The
-    guided chain keeps its own test (:data:`FDR_Q`)."""
+    methods' device halves, six scenes) against the untested mean: at 8 spp +0.11 dB on
+    average at 512x512 (-0.13 to +0.66) and +0.07 at 256x256 on other seeds (-0.17 to
+    +0.65); at 12 spp -0.03 and +0.04 (-0.49 to +0.89, huge_coc's gains); mirrored about 0
+    it lost up to 1.0 dB, and the 2-standard-error test up to 0.64. From 16 spp the
+    halves' variances are scaled by the measured convergence and the mean stays untested;
+    below 8 spp, and on declared independent samples below 16 spp, it is tested at 2
+    standard errors (:func:`bias_tests`); the guided chain keeps its own test
+    (:data:`FDR_Q`)."""
     h = min(halves(int(spp)))
-    return not guided and MIN_TEST_HALF <= h < SHRINK_HALF_END
+    return not guided and not independent and MIN_TEST_HALF <= h < SHRINK_HALF_END
 
 
 def vector_width(context: cl.Context) -> int:

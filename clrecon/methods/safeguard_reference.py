@@ -99,8 +99,8 @@ def fdr_shrink_table(mu7: np.ndarray, var7: np.ndarray, noisy=None,
     the pixels with ``mu7 > 0`` and ``|z| >= t``, ``N(t)`` those with ``mu7 < 0`` and ``|z|
     >= t`` (1 where ``R(t) = 0``): the frame's false discovery rate with its negative means
     as the null. ``centre``: the null mirrored about the frame's mode of ``z`` (the first
-    signed bin where its +-:data:`FDR_MODE_RADIUS` bins' counts weighted by a triangle peak),
-    not 0.
+    signed bin where its +-:data:`FDR_MODE_RADIUS` bins' counts weighted by a triangle peak)
+    where that lies below 0, not about 0 (a bias only adds to a mean).
     ``noisy``: the pixels that count (None: all; the blend's, those whose 7x7 window of box
     shows noise: ``safeguard_fdr_rows``' ``noisy_only``)."""
     j = _z_bins(mu7, var7)
@@ -123,7 +123,8 @@ def shrink_table_of(hist: np.ndarray, centre: bool) -> np.ndarray:
     if centre:
         r = FDR_MODE_RADIUS
         win = np.convolve(sc, r + 1 - np.abs(np.arange(-r, r + 1)))  # a triangle
-        m = 2 * int(np.argmax(win[FDR_MODE_RADIUS:FDR_MODE_RADIUS + 2 * b]))
+        # never above 0: a mode above 0 is the biased pixels', not the noise's
+        m = min(2 * int(np.argmax(win[FDR_MODE_RADIUS:FDR_MODE_RADIUS + 2 * b])), 2 * b - 1)
     below = np.concatenate([[0], np.cumsum(sc)])  # below[i]: the bins < i
     top = np.arange(b)
     pos = below[2 * b] - below[b + top]

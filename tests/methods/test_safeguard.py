@@ -83,11 +83,12 @@ def test_blend_and_error_match_reference(device, method, spp):
 
 @pytest.mark.parametrize("spp", [5, 8, 16])
 def test_independent_samples_declared(device, spp):
-    """``independent_samples=True``: at 8-15 spp the 7x7 bias mean scaled by the frame's
-    q-value (``frame_shrink``), from 16 spp shrunk by its significance (the reference's
-    ``z7 < 0``) with no measured convergence (the halves' variances as they are: no
-    ``safeguard_ratio``); below 8 spp the tested mean as before, bit for bit; described; a
-    pipeline without halves takes it and changes nothing."""
+    """``independent_samples=True``: below 16 spp the 7x7 bias mean tested at 2 standard
+    errors (not scaled by the frame's q-value, as stratified samples' at 8-15 spp), from 16
+    spp shrunk by its significance (the reference's ``z7 < 0``) with no measured convergence
+    (the halves' variances as they are: no ``safeguard_ratio``); below 8 spp the tested mean
+    as for any frame, bit for bit; described; a pipeline without halves takes it and changes
+    nothing."""
     buf = frame(np.random.default_rng(30 + spp), h=13, w=17, s=spp)
     got = run(buf, method="sweep", device=device, estimate_error=True,
               independent_samples=True)
@@ -103,11 +104,12 @@ def test_independent_samples_declared(device, spp):
     ha, _ = sg.halves(spp)
     halves = [_half(buf, slice(0, ha)), _half(buf, slice(ha, None))]
     ma, mb = (run(h, method="sweep", device=device, safeguard=False).image for h in halves)
-    shrink = spp < 16  # safeguard_passes.shrinks_by_frame: its null about 0, not the mode
-    for r in (got, plain):
-        assert r.method["safeguard_bias_tests"]["7x7 by the frame's q-value"] == shrink
-    img, err = sg.reference(buf.color, None, ma, mb, mode=sg.MODE_BLEND, z7=sg.SHRINK_Z7,
-                            vscale=1.0, frame_shrink=shrink)
+    tested = spp < 16  # safeguard_passes.bias_tests
+    assert got.method["safeguard_bias_tests"]["7x7 at 2 se"] == tested
+    assert not got.method["safeguard_bias_tests"]["7x7 by the frame's q-value"]
+    assert plain.method["safeguard_bias_tests"]["7x7 by the frame's q-value"] == (spp < 16)
+    img, err = sg.reference(buf.color, None, ma, mb, mode=sg.MODE_BLEND,
+                            z7=sg.GUIDED_Z7 if tested else sg.SHRINK_Z7, vscale=1.0)
     scale = float(np.abs(img).max())
     assert_close(got.image, img, rtol=1e-4, atol=1e-5 * scale, what="image")
     assert_close(got.error, err, rtol=1e-3, atol=1e-6 * scale ** 2, what="error")

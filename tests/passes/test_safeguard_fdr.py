@@ -184,7 +184,7 @@ def test_shrink_table_centred_known_answers():
     centres: 200 pixels at the mode (z -0.98), 100 at 2 below it (-2.98), 100 at 2 above
     (+1.02: their mirror image) and 50 at +5.02. About the mode, the 100 above are noise as
     likely as not against 150 positive: 1/3 up to their bin, 1 beyond; about 0 the 200 at
-    the mode outnumber every positive below 1: 0 there."""
+    the mode outnumber every positive below 1: 0 there. A mode above 0 is not the null's."""
     def at(k, n):  # n pixels at signed bin k's centre
         return [(k - FDR_BINS + 0.5) / FDR_SCALE] * n
     mode = FDR_BINS - 32
@@ -195,6 +195,11 @@ def test_shrink_table_centred_known_answers():
     assert np.allclose(centred[:33], 1 / 3) and np.all(centred[33:] == 1.0)
     assert np.all(zero[:32] == 0.0) and np.allclose(zero[32:96], 1 / 3)
     assert np.all(zero[96:] == 1.0)
+    # a mode above 0 is the biased pixels': the null stays about 0
+    mu = np.concatenate([mu, at(FDR_BINS + 64, 1000)])
+    one = np.ones_like(mu)
+    assert np.array_equal(fdr_shrink_table(mu, one, centre=True), fdr_shrink_table(mu, one))
+    assert fdr_shrink_table(mu, one)[64] > 0.5
 
 
 @pytest.mark.parametrize("centre", [False, True])

@@ -191,16 +191,19 @@ def test_bias_tests_rule():
     for s in range(2, 70):
         assert bias_tests(False, s) == (s < 8, True), s
         assert bias_tests(True, s) == (True, s >= 32), s
+        # declared independent samples test the 7x7 mean below 16 spp
+        assert bias_tests(False, s, independent=True) == (s < 16, True), s
 
 
 def test_shrinks_by_frame_rule():
     """The frame's q-value scales a method's own 7x7 mean with halves of 4-7 samples (8-15
-    spp; 15 spp's are 7 and 8), never the guided chain's."""
+    spp; 15 spp's are 7 and 8), never the guided chain's nor declared independent
+    samples' (which test it there: bias_tests)."""
     from clrecon.methods.safeguard_passes import SHRINK_HALF_END, shrinks_by_frame
     assert SHRINK_HALF_END == 8
     for s in range(2, 70):
         assert shrinks_by_frame(False, s) == (8 <= s < 16), s
-        assert not shrinks_by_frame(True, s)
+        assert not shrinks_by_frame(True, s) and not shrinks_by_frame(False, s, True)
 
 
 @pytest.mark.parametrize("s", [5, 16])
