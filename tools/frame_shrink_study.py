@@ -21,17 +21,20 @@ The halves' variances are scaled as the pipeline scales them: the lattice's by i
 convergence from 16 spp, independent samples' not at all. PSNR dB against the converged
 reference; each form's change against the first in brackets, and the mean, least and most
 change per spp at the end. Nothing here is fitted to the scenes.
-Run: ``python tools/frame_shrink_study.py [--size 512] [--spp 8,16,64] [--sampler random]``.
+Run: ``python tools/frame_shrink_study.py [--size 512] [--spp 8,16,64] [--sampler random]
+[--figures DIR --figure-method splat]`` (the figures: each form's image and squared error).
 """
 from __future__ import annotations
 
 import argparse
 from datetime import datetime, timezone
+from pathlib import Path
 
 import numpy as np
 from safeguard_variants import METHODS, halves_images
 
 import clrecon.api  # noqa: F401  (registers the methods)
+from clrecon.bench.figures import pyplot, save_png
 from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.methods import safeguard as sg
@@ -54,9 +57,11 @@ def pipeline_form(spp: int) -> str:
         "q about mode" if shrinks_by_frame(False, spp) else "untested")
 
 
-def measure(name: str, size: int, spp: int, sampler: str, forms, dev, ref, seed: int):
+def measure(name: str, size: int, spp: int, sampler: str, forms, dev, ref, seed: int,
+            images: dict | None = None):
     """{method: {form: PSNR}} and box's PSNR for one frame. On the lattice the form the
-    pipeline takes is checked against the device's own image (to 0.02 dB)."""
+    pipeline takes is checked against the device's own image (to 0.02 dB). ``images``: a
+    dict that receives each (method, form)'s image, and ``"box"``."""
     buf = render_samples(get_scene(name), size, size, spp, seed=seed + spp, device=dev,
                          sampler=sampler)
     c = buf.color.astype(np.float64)
@@ -69,14 +74,46 @@ def measure(name: str, size: int, spp: int, sampler: str, forms, dev, ref, seed:
         if imgs is None:
             continue
         got, ma, mb = imgs
-        out[method] = row = {f: psnr(reference_of_halves(
-            a, b, ha, hb, None, ma, mb, sg.MODE_BLEND, vscale=vscale,
-            cov=models_covariance(spp), **FORMS[f])[0].astype(np.float32), ref) for f in forms}
+        row = {}
+        for f in forms:
+            img = reference_of_halves(a, b, ha, hb, None, ma, mb, sg.MODE_BLEND, vscale=vscale,
+                                      cov=models_covariance(spp), **FORMS[f])[0]
+            row[f] = psnr(img.astype(np.float32), ref)
+            if images is not None:
+                images[method, f] = img
+        out[method] = row
         own = pipeline_form(spp)
         if sampler == "lattice" and own in row and abs(row[own] - psnr(got, ref)) > 0.02:
             raise AssertionError(f"{name} {spp} {method}: the host's {own!r} gives "
                                  f"{row[own]:.3f} dB, the device {psnr(got, ref):.3f}")
+    if images is not None:
+        images["box"] = buf.color.mean(2)
     return out, psnr(buf.color.mean(2).astype(np.float32), ref)
+
+
+def figure(path, ref, images: dict, method: str, forms, title: str) -> None:
+    """A PNG: the reference, box and each form's image (tone-mapped), and below each its
+    squared error (mean over RGB) on one scale, the first form's 99.5th percentile."""
+    plt = pyplot()
+    shown = [("box", images["box"])] + [(f, images[method, f]) for f in forms]
+
+    def err(x):
+        return ((np.asarray(x, np.float64) - ref) ** 2).mean(-1)
+
+    vmax = max(float(np.percentile(err(shown[1][1]), 99.5)), 1e-12)
+    fig, ax = plt.subplots(2, len(shown) + 1, figsize=(2.4 * (len(shown) + 1), 5.0))
+    for i, (name, img) in enumerate([("reference", ref)] + shown):
+        ax[0][i].imshow(np.clip(img / (1 + img), 0, 1) ** (1 / 2.2))
+        label = name if i == 0 else f"{name} {psnr(img.astype(np.float32), ref):.2f} dB"
+        ax[0][i].set_title(label, fontsize=9)
+        if i:
+            ax[1][i].imshow(err(img), vmin=0, vmax=vmax, cmap="magma")
+            ax[1][i].set_title(f"{name}: squared error", fontsize=9)
+    for a in ax.flat:
+        a.axis("off")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    save_png(fig, path)
 
 
 def main(argv=None) -> None:
@@ -88,6 +125,9 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=100, help="samples: seed + spp")
     ap.add_argument("--forms", default="shrink,q about 0,q about mode,untested,2 se")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--figures", default=None, metavar="DIR",
+                    help="write DIR/<scene>_<spp>spp_<method>.png per frame (error maps)")
+    ap.add_argument("--figure-method", default="splat", choices=METHODS)
     args = ap.parse_args(argv)
     forms = args.forms.split(",")
     dev = get_device(None)
@@ -103,7 +143,13 @@ def main(argv=None) -> None:
     for name in args.scenes.split(","):
         ref = render_reference(get_scene(name), args.size, args.size)  # the trusted device's
         for spp in (int(s) for s in args.spp.split(",")):
-            res, box = measure(name, args.size, spp, args.sampler, forms, dev, ref, args.seed)
+            images = {} if args.figures else None
+            res, box = measure(name, args.size, spp, args.sampler, forms, dev, ref, args.seed,
+                               images)
+            if images and (args.figure_method, forms[0]) in images:
+                figure(Path(args.figures) / f"{name}_{spp}spp_{args.figure_method}.png", ref,
+                       images, args.figure_method, forms, f"{name}, {spp} spp, "
+                       f"{args.size}x{args.size}, {args.sampler}: {args.figure_method}")
             for method, row in res.items():
                 first = row[forms[0]]
                 for f in forms[1:]:

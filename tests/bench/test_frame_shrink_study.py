@@ -31,3 +31,14 @@ def test_tiny_scene_end_to_end(device, sampler):
     for method in fs.METHODS:
         assert list(out[method]) == forms
         assert all(math.isfinite(v) for v in out[method].values()), out
+
+
+def test_figure_of_a_tiny_scene(device, tmp_path):
+    ref = render.render_reference(fs.get_scene("fence"), 24, 24, spp=64)
+    images = {}
+    fs.measure("fence", 24, 8, "lattice", ["untested", "q about mode"], device, ref, 100,
+               images)
+    assert set(images) >= {"box", ("splat", "untested"), ("splat", "q about mode")}
+    path = tmp_path / "fence_8spp_splat.png"
+    fs.figure(path, ref, images, "splat", ["untested", "q about mode"], "fence")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
