@@ -9,13 +9,15 @@
  *                         FDR_BINS / FDR_SCALE in the last of each half): the first half
  *                         the pixels with mu7 > 0, the second those with mu7 < 0
  *                         (noisy_only = 1: only the windows where box shows noise)
- *   safeguard_fdr         one work-item: the rows' positive halves summed, and z[0] = the
+ *   safeguard_fdr_sum     one work-item a column: the rows' histograms summed into the
+ *                         first row (the two kernels below read only that row)
+ *   safeguard_fdr         one work-item: from the positive half of the totals, z[0] = the
  *                         lowest bin edge t with npix * Q(t) <= q * R(t), R(t) the pixels
  *                         with z >= t and Q the normal's upper tail (Benjamini-Hochberg at
  *                         level q, to the bins' resolution); FDR_BINS / FDR_SCALE where no
  *                         edge passes (the guided chain's test)
- *   safeguard_fdr_shrink  one work-item: the rows' histograms summed (into hist's first
- *                         row), and each bin's factor table[j] = 1 - min over i <= j of
+ *   safeguard_fdr_shrink  one work-item: from the totals, each bin's factor
+ *                         table[j] = 1 - min over i <= j of
  *                         min(1, N(t_i) / R(t_i)), N(t) the pixels with z <= -t: a mean is
  *                         never negative but by noise, so N(t) estimates how many of the
  *                         R(t) positive ones at least as significant are noise too (the
@@ -89,23 +91,35 @@ __kernel void safeguard_fdr_rows(__global const float *rows, __global int *hist,
     }
 }
 
-__kernel void safeguard_fdr(__global const int *hist, int height, int npix, float q,
-                            __global float *z)
+__kernel void safeguard_fdr(__global const int *hist, int npix, float q, __global float *z)
 {
     if (get_global_id(0) != 0)
         return;
-    /* R(t_j) for the edges from the top down; the lowest edge that passes is kept */
+    /* R(t_j) for the edges from the top down (the totals in the first row:
+     * safeguard_fdr_sum); the lowest edge that passes is kept */
     long count = 0;
     float zs = (float)FDR_BINS / FDR_SCALE;
     for (int j = FDR_BINS - 1; j >= 0; --j) {
-        for (int y = 0; y < height; ++y)
-            count += hist[(size_t)y * 2 * FDR_BINS + j];
+        count += hist[j];
         const float t = (float)j / FDR_SCALE;
         /* the normal's upper tail Q(t) = erfc(t / sqrt 2) / 2, in float32 down to ~1e-38 */
         if ((float)npix * 0.5f * erfc(t * M_SQRT1_2_F) <= q * (float)count)
             zs = t;
     }
     z[0] = zs;
+}
+
+/* one work-item a column of the rows' histograms (2 FDR_BINS): its total into the first row,
+ * the column's own entry (adjacent work-items read adjacent columns) */
+__kernel void safeguard_fdr_sum(__global int *hist, int height)
+{
+    const int c = get_global_id(0);
+    if (c >= 2 * FDR_BINS)
+        return;
+    int n = 0;
+    for (int y = 0; y < height; ++y)
+        n += hist[(size_t)y * 2 * FDR_BINS + c];
+    hist[c] = n;
 }
 
 /* the frame's count in signed bin k of z (0 .. 2 FDR_BINS - 1: z from -FDR_BINS / FDR_SCALE
@@ -115,19 +129,11 @@ inline long signed_count(__global const int *tot, int k)
     return k >= FDR_BINS ? tot[k - FDR_BINS] : tot[FDR_BINS + (FDR_BINS - 1 - k)];
 }
 
-__kernel void safeguard_fdr_shrink(__global int *hist, int height, int centre,
+__kernel void safeguard_fdr_shrink(__global const int *hist, int centre,
                                    __global float *table)
 {
     if (get_global_id(0) != 0)
         return;
-    /* the rows' histograms summed into the first row, column by column (a column's total
-     * overwrites only its own first entry) */
-    for (int c = 0; c < 2 * FDR_BINS; ++c) {
-        int n = 0;
-        for (int y = 0; y < height; ++y)
-            n += hist[(size_t)y * 2 * FDR_BINS + c];
-        hist[c] = n;
-    }
     /* the null's mirror: signed bin k mirrors to m - k; about z = 0 (m = 2 FDR_BINS - 1),
      * or with centre about the frame's mode (m = 2 k*, k* the first bin where the counts
      * of +-FDR_MODE_RADIUS bins, weighted by a triangle (R + 1 - |i - k|), peak) */

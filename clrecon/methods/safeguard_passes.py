@@ -151,7 +151,7 @@ def vector_width(context: cl.Context) -> int:
 
 class SafeguardPasses:
     """The kernels of ``kernels/safeguard.cl``, built for this context's vector width, and
-    ``kernels/safeguard_ratio.cl``'s two and ``kernels/safeguard_fdr.cl``'s three."""
+    ``kernels/safeguard_ratio.cl``'s two and ``kernels/safeguard_fdr.cl``'s four."""
 
     def __init__(self, context: cl.Context, vw: int | None = None):
         """``vw``: the vector width (1, 4, 8 or 16; default :func:`vector_width`)."""
@@ -170,6 +170,7 @@ class SafeguardPasses:
         self.fdr_rows = get_kernel(context, "safeguard_fdr", "safeguard_fdr_rows", defines)
         self.fdr = get_kernel(context, "safeguard_fdr", "safeguard_fdr", defines)
         self.fdr_shrink = get_kernel(context, "safeguard_fdr", "safeguard_fdr_shrink", defines)
+        self.fdr_sum = get_kernel(context, "safeguard_fdr", "safeguard_fdr_sum", defines)
         #: the variances' factor where it is not measured: 1 (independent samples)
         self.one = cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                              hostbuf=np.ones(1, np.float32))
@@ -282,18 +283,22 @@ class SafeguardPasses:
         None`` (a method's own blend at 8-15 spp: :func:`shrinks_by_frame`), the table of
         :data:`FDR_BINS` factors ``1 - q-value``, the frame's negative means counting its
         noise (:func:`~clrecon.methods.safeguard_reference.fdr_shrink_table`), mirrored
-        about the frame's mode of z with ``centre``. Two launches, their events in order."""
+        about the frame's mode of z with ``centre``. Three launches (the rows, their sum, the
+        threshold or table), their events in order."""
         self.fdr_rows.set_args(rows, hist, np.int32(w), np.int32(h),
                                np.int32(self.rows_pitch(w)), np.int32(q is None))
         ev = cl.enqueue_nd_range_kernel(queue, self.fdr_rows, (int(h),), None,
                                         wait_for=wait_for)
+        self.fdr_sum.set_args(hist, np.int32(h))
+        ev_sum = cl.enqueue_nd_range_kernel(queue, self.fdr_sum, (2 * FDR_BINS,), None,
+                                            wait_for=[ev])
         if q is None:
-            self.fdr_shrink.set_args(hist, np.int32(h), np.int32(bool(centre)), z)
+            self.fdr_shrink.set_args(hist, np.int32(bool(centre)), z)
             k = self.fdr_shrink
         else:
-            self.fdr.set_args(hist, np.int32(h), np.int32(w * h), np.float32(q), z)
+            self.fdr.set_args(hist, np.int32(w * h), np.float32(q), z)
             k = self.fdr
-        return [ev, cl.enqueue_nd_range_kernel(queue, k, (1,), None, wait_for=[ev])]
+        return [ev, ev_sum, cl.enqueue_nd_range_kernel(queue, k, (1,), None, wait_for=[ev_sum])]
 
     @staticmethod
     def fdr_bytes(height: int) -> int:
