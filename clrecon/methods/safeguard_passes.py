@@ -126,10 +126,11 @@ def shrinks_by_frame(guided: bool, spp: int, independent: bool = False) -> bool:
     A mean of ``e`` is negative by noise alone, so the frame's negative means tell how many
     of its positive ones at the same significance are noise: no model of the noise, one
     constant (:data:`FDR_MODE_RADIUS`); the blend's weight with ``(1 - q) mu7`` minimises
-    the expected error when ``q`` is the chance the mean is noise. Below 16 spp stratified samples' halves
-    overstate the variance (:func:`measures_convergence`), so the noise's means centre below
-    0 (the frame's mode of z: -0.1 to -1.1 on the built-in scenes at 8 spp) and the null is
-    mirrored about the frame's mode (never above 0: a bias only adds to a mean). Measured
+    the expected error when ``q`` is the chance the mean is noise. Below 16 spp stratified
+    samples' halves overstate the variance (:func:`measures_convergence`), so the noise's
+    means centre below 0 (the frame's mode of z: -0.1 to -1.1 on the built-in scenes at 8
+    spp) and the null is mirrored about the frame's mode (never above 0: a bias only adds
+    to a mean). Measured
     (``docs/measurements/frame-shrink-pocl.md``, ``tools/frame_shrink_study.py``: the
     methods' device halves, six scenes) against the untested mean: at 8 spp +0.11 dB on
     average at 512x512 (-0.13 to +0.66) and +0.07 at 256x256 on other seeds (-0.17 to
