@@ -324,15 +324,13 @@ __kernel void safeguard_blend(__global const float *rows, __global const float *
     if (fdr == 2) {
         /* a positive mean scaled by its significance's bin's factor: 1 minus the share of
          * the frame's means at least as significant that are noise */
-        const vfloat var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;
-        const vfloat z = select((vfloat)(INFINITY), fabs(mu7) / sqrt(var7), var7 > 0.0f);
         float zl[SG_VW], fl[SG_VW];
-        VSTORE(z, zl);
+        VSTORE(abs_z(mu7, window_se2(mu7, ee7, n7)), zl);
         for (int i = 0; i < SG_VW; ++i)
             fl[i] = zfdr[fdr_bin(zl[i])];
         mu7 = select((vfloat)(0.0f), mu7 * VLOAD(fl), mu7 > 0.0f);
     } else if (z7 != 0.0f) {
-        const vfloat var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;  /* se7^2 */
+        const vfloat var7 = window_se2(mu7, ee7, n7);  /* se7^2 */
         /* z7 < 0: shrunk by its significance (a positive-part James-Stein shrinkage: the
          * positive noise of a mean near 0 no longer pulls the image toward box) */
         mu7 = z7 > 0.0f ? mu7 - z7 * sqrt(var7)

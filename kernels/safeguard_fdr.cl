@@ -75,9 +75,8 @@ __kernel void safeguard_fdr_rows(__global const float *rows, __global int *hist,
         const vint x = x0 + SG_LANES;
         const vfloat n7 = CONVERT_FLOAT((min(x + 3, last) - max(x - 3, zero) + 1) * r7);
         const vfloat mu7 = e7 / n7;
-        const vfloat var7 = fmax(ee7 / n7 - mu7 * mu7, 0.0f) / n7;
         /* no spread: |z| = inf (a discovery at every edge) */
-        const vfloat z = select((vfloat)(INFINITY), fabs(mu7) / sqrt(var7), var7 > 0.0f);
+        const vfloat z = abs_z(mu7, window_se2(mu7, ee7, n7));
         /* noisy_only: a window whose box shows no noise (vb 0 at its every pixel: the
          * blend's weight is 0 there whatever its mean) holds no test, and its mean is
          * rounding, of either sign */

@@ -56,6 +56,20 @@ __attribute__((always_inline)) inline vfloat pow2_nonpos(const vint n)
 #define FDR_SCALE 32
 #endif
 
+/* a 7x7 window's mean's squared standard error from its sums' means mu = sum(e) / n and
+ * ee / n = sum(e^2) / n, and the mean's |z| (inf where the window shows no spread): one
+ * definition for safeguard_fdr_rows and safeguard_blend, so a pixel's |z| is the same in both */
+__attribute__((always_inline)) inline vfloat window_se2(const vfloat mu, const vfloat ee,
+                                                        const vfloat n)
+{
+    return fmax(ee / n - mu * mu, 0.0f) / n;
+}
+
+__attribute__((always_inline)) inline vfloat abs_z(const vfloat mu, const vfloat se2)
+{
+    return select((vfloat)(INFINITY), fabs(mu) / sqrt(se2), se2 > 0.0f);
+}
+
 /* the bin of |z| >= 0 (safeguard_fdr_rows counts it, safeguard_blend looks it up) */
 inline int fdr_bin(float z)
 {

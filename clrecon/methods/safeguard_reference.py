@@ -71,16 +71,12 @@ def fdr_threshold(mu7: np.ndarray, var7: np.ndarray, q: float) -> float:
     lowest bin edge ``t = j / FDR_SCALE`` with ``N Q(t) <= q R(t)``, ``R(t)`` the pixels
     whose ``mu7 / se7`` (``se7^2 = var7``) is at least ``t`` (Benjamini-Hochberg, to the
     bins' resolution; ``Q`` the normal's upper tail), ``FDR_BINS / FDR_SCALE`` if none."""
-    pos = mu7 > 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(var7[pos] > 0, mu7[pos] / np.sqrt(var7[pos]), np.inf)
-    top = FDR_BINS / FDR_SCALE
-    bins = np.where(z < top, np.floor(z * FDR_SCALE), FDR_BINS - 1).astype(np.int64)
+    bins = _z_bins(mu7, var7)[mu7 > 0]
     r = np.cumsum(np.bincount(bins, minlength=FDR_BINS)[::-1])[::-1]
     for j in range(FDR_BINS):
         if mu7.size * 0.5 * erfc(j / FDR_SCALE / sqrt(2)) <= q * r[j]:
             return j / FDR_SCALE
-    return top
+    return FDR_BINS / FDR_SCALE
 
 
 def _z_bins(mu7: np.ndarray, var7: np.ndarray) -> np.ndarray:
@@ -200,13 +196,11 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     n3 = _window_count(e.shape, 1)
     se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
     mu7 = _window_mean(e, 3)
+    if frame_shrink or z7 != 0 or fdr_q is not None:  # se7^2
+        var7 = np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / _window_count(e.shape, 3)
     if frame_shrink:
-        n7 = _window_count(e.shape, 3)
-        mu7 = fdr_shrink(mu7, np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7,
-                         _window_mean(vb, 3) > 0, centre)
+        mu7 = fdr_shrink(mu7, var7, _window_mean(vb, 3) > 0, centre)
     elif z7 != 0 or fdr_q is not None:
-        n7 = _window_count(e.shape, 3)
-        var7 = np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / n7
         z7 = z7 if fdr_q is None else fdr_threshold(mu7, var7, fdr_q)
         with np.errstate(divide="ignore", invalid="ignore"):
             mu7 = mu7 - z7 * np.sqrt(var7) if z7 > 0 else \
