@@ -17,15 +17,16 @@
  *                         level q, to the bins' resolution); FDR_BINS / FDR_SCALE where no
  *                         edge passes (the guided chain's test)
  *   safeguard_fdr_shrink  one work-item: from the totals, each bin's factor
- *                         table[j] = 1 - min over i <= j of
- *                         min(1, N(t_i) / R(t_i)), N(t) the pixels with z <= -t: a mean is
- *                         never negative but by noise, so N(t) estimates how many of the
- *                         R(t) positive ones at least as significant are noise too (the
- *                         frame's false discovery rate with its null read off the frame
- *                         itself, as a q-value); with centre, the null mirrored about the
- *                         frame's mode of z, if below 0, instead of 0 (N(t): z <= 2 mode -
- *                         t): where the halves overstate the variance, the noise's means
- *                         centre below 0.
+ *                         table[j] = 1 - min over i <= j of min(1, N(t_i) / R(t_i)),
+ *                         R(t) the pixels with mu7 > 0 and |z| >= t, N(t) the count a
+ *                         normal null expects there: the frame's false discovery rate as a
+ *                         q-value, its null read off the frame itself (Efron's empirical
+ *                         null: a normal matched to the histogram's central peak; a peak
+ *                         above 0 is the biased pixels', and the null then N(0, 1)). A
+ *                         mean is positive or negative by noise alone
+ *                         and positive by a bias as well; where the halves misstate the
+ *                         variance, the noise's means are centred off 0 and spread wider or
+ *                         narrower than z's unit, which the peak's place and width measure.
  *                         The blend scales a positive mu7 by its bin's factor
  * Arguments: rows, the nine row-segment planes of safeguard_rows (pitch rp, a multiple of
  * SG_VW: kernels/safeguard_vec.h, the host's vector width); hist (H, 2 FDR_BINS) ints; z
@@ -38,7 +39,7 @@
 #include "safeguard_vec.h"
 
 #ifndef FDR_MODE_RADIUS
-#define FDR_MODE_RADIUS 8
+#define FDR_MODE_RADIUS 8   /* the peak's smoothing: a triangle of +-8 bins (+-0.25 in z) */
 #endif
 
 /* SG_VW pixels x0 .. x0 + SG_VW - 1 at a time (the rows' pitch is a multiple of SG_VW; lanes
@@ -128,47 +129,81 @@ inline long signed_count(__global const int *tot, int k)
     return k >= FDR_BINS ? tot[k - FDR_BINS] : tot[FDR_BINS + (FDR_BINS - 1 - k)];
 }
 
-__kernel void safeguard_fdr_shrink(__global const int *hist, int centre,
-                                   __global float *table)
+/* the frame's signed counts about bin k weighted by a triangle, FDR_MODE_RADIUS + 1 - |i - k|
+ * for |i - k| <= FDR_MODE_RADIUS (its weights sum to (FDR_MODE_RADIUS + 1)^2) */
+inline long smoothed_count(__global const int *tot, int k)
+{
+    long n = 0;
+    for (int i = max(k - FDR_MODE_RADIUS, 0); i <= min(k + FDR_MODE_RADIUS, 2 * FDR_BINS - 1);
+         ++i)
+        n += (FDR_MODE_RADIUS + 1 - abs(i - k)) * signed_count(tot, i);
+    return n;
+}
+
+__kernel void safeguard_fdr_shrink(__global const int *hist, __global float *table)
 {
     if (get_global_id(0) != 0)
         return;
-    /* the null's mirror: signed bin k mirrors to m - k; about z = 0 (m = 2 FDR_BINS - 1),
-     * or with centre about the frame's mode (m = 2 k*, k* the first bin where the counts
-     * of +-FDR_MODE_RADIUS bins, weighted by a triangle (R + 1 - |i - k|), peak) */
-    int m = 2 * FDR_BINS - 1;
-    if (centre) {
-        long best = -1;
-        for (int k = 0; k < 2 * FDR_BINS; ++k) {
-            long n = 0;
-            for (int i = max(k - FDR_MODE_RADIUS, 0);
-                 i <= min(k + FDR_MODE_RADIUS, 2 * FDR_BINS - 1); ++i)
-                n += (FDR_MODE_RADIUS + 1 - abs(i - k)) * signed_count(hist, i);
-            if (n > best) {
-                best = n;
-                m = 2 * k;
+    /* the null, a normal fitted to the frame's central peak (Efron's empirical null by
+     * central matching): its mode, the first bin k* where the smoothed counts peak moved
+     * by the vertex of the parabola through it and its neighbours; its half width at half
+     * maximum, the narrower side's, each the distance from k* to where the smoothed counts
+     * fall below half the peak's, interpolated between the two bins about it (an end of
+     * the bins: one past it); its mass from the peak's height. A peak above 0 is the
+     * biased pixels', and so is its width: the null is then centred at 0 with z's unit
+     * spread, its height the smoothed count just below 0. The interpolations keep the fit
+     * continuous in the counts (the NumPy reference's normal_null) */
+    long peak = -1, total = 0;
+    int km = 0;
+    for (int k = 0; k < 2 * FDR_BINS; ++k) {
+        const long n = smoothed_count(hist, k);
+        total += signed_count(hist, k);
+        if (n > peak) {
+            peak = n;
+            km = k;
+        }
+    }
+    float mu = 0.0f, sigma = 1.0f;
+    if (km >= FDR_BINS) {
+        peak = smoothed_count(hist, FDR_BINS - 1);
+    } else {
+        float off = 0.0f;
+        if (km > 0) {
+            const long l = smoothed_count(hist, km - 1), r = smoothed_count(hist, km + 1);
+            if (l - 2 * peak + r < 0)
+                off = 0.5f * (float)(l - r) / (float)(l - 2 * peak + r);
+        }
+        float hw = (float)(2 * FDR_BINS);
+        for (int side = -1; side <= 1; side += 2) {
+            int d = 1;
+            long prev = peak, n = 0;
+            bool crossed = false;
+            while (km + side * d >= 0 && km + side * d < 2 * FDR_BINS) {
+                n = smoothed_count(hist, km + side * d);
+                if (2 * n < peak) {
+                    crossed = true;
+                    break;
+                }
+                prev = n;
+                ++d;
             }
+            hw = fmin(hw, crossed ? (float)(d - 1) + ((float)prev - 0.5f * (float)peak)
+                                    / (float)(prev - n) : (float)d);
         }
-        /* never above 0: a bias only adds to a mean, so a mode above 0 is the biased
-         * pixels', not the noise's */
-        m = min(m, 2 * FDR_BINS - 1);
+        sigma = hw / ((float)FDR_SCALE * sqrt(2.0f * M_LN2_F));
+        mu = fmin(((float)(km - FDR_BINS) + off + 0.5f) / FDR_SCALE, 0.0f);
     }
-    /* R(t_j): the bins k >= FDR_BINS + j; N(t_j): the bins k <= m - FDR_BINS - j, counted
-     * as j falls from the top */
-    long pos = 0, neg = 0;
-    int lo = m - (2 * FDR_BINS - 1);  /* N's upper bin at the top j */
-    for (int k = 0; k <= min(lo, 2 * FDR_BINS - 1); ++k)
-        neg += signed_count(hist, k);
+    const float w2 = (float)((FDR_MODE_RADIUS + 1) * (FDR_MODE_RADIUS + 1));
+    const float n0 = fmin((float)peak / w2 * sigma * sqrt(2.0f * M_PI_F) * FDR_SCALE,
+                          (float)total);
+    /* R(t_j): the positive means at |z| >= t_j = j / FDR_SCALE; N(t_j): the null's expected
+     * count above t_j; a q-value: the least rate of any threshold at or below the bin's edge */
+    long pos = 0;
     for (int j = FDR_BINS - 1; j >= 0; --j) {
-        pos += signed_count(hist, FDR_BINS + j);
-        if (j < FDR_BINS - 1) {  /* N's upper bin moves up by one */
-            const int k = m - FDR_BINS - j;
-            if (k >= 0 && k < 2 * FDR_BINS)
-                neg += signed_count(hist, k);
-        }
-        table[j] = pos > 0 ? fmin(1.0f, (float)neg / (float)pos) : 1.0f;
+        pos += hist[j];
+        const float tail = 0.5f * erfc(((float)j / FDR_SCALE - mu) * M_SQRT1_2_F / sigma);
+        table[j] = pos > 0 ? fmin(1.0f, n0 * tail / (float)pos) : 1.0f;
     }
-    /* a q-value: the least rate of any threshold at or below the bin's edge */
     float q = 1.0f;
     for (int j = 0; j < FDR_BINS; ++j) {
         q = fmin(q, table[j]);

@@ -31,9 +31,9 @@ the device's own image to 0.02 dB). A variant changes one thing:
 
 ``shipped`` is the library's estimator at the frame's sample count (below 8 spp its 7x7
 mean is tested at 2 standard errors: ``safeguard_passes.bias_tests``, since 2026-12-07, when
-``se7 2`` was this page's 4-spp winner; at 8-15 spp, since 2026-12-07, scaled by the frame's
-q-value: ``safeguard_passes.shrinks_by_frame``; from 16 spp its bias term models the
-covariance);
+``se7 2`` was this page's 4-spp winner; from 8 spp, since 2026-12-08 (8-15 spp since
+2026-12-07), scaled by the frame's q-value: ``safeguard_passes.shrinks_by_frame``; from 16
+spp its bias term models the covariance);
 the others change one thing from the untested form (``cov``: the covariance's estimate in
 place of the model).
 None of these constants is fitted to the scenes.
@@ -115,8 +115,8 @@ def blend(color: np.ndarray, ma: np.ndarray, mb: np.ndarray, variant: str) -> np
     rel = np.divide(se7, mu7, out=np.full_like(mu7, np.inf), where=mu7 > 0)  # se7 / mu7
     test7, _ = bias_tests(False, s)  # the library's own tests of a method's halves
     shipped7 = mu7 - 2 * se7 if test7 else mu7
-    if shrinks_by_frame(False, s):  # 8-15 spp: the frame's q-value, its null about the mode
-        shipped7 = fdr_shrink(mu7, se7 * se7, _window_mean(vb, 3) > 0, centre=True)
+    if shrinks_by_frame(False, s):  # from 8 spp: the frame's q-value
+        shipped7 = fdr_shrink(mu7, se7 * se7, _window_mean(vb, 3) > 0)
     t7 = {"se7 1": mu7 - se7, "se7 2": mu7 - 2 * se7, "se7 2 no 3x3": mu7 - 2 * se7,
           "untested 7x7": mu7,
           "shrink7": np.where(mu7 > 0, mu7 * np.maximum(0.0, 1.0 - rel * rel), 0.0)

@@ -228,7 +228,7 @@ class Safeguarded(Pipeline):
             steps.append(Step("safeguard_ratio", ("stats",), ("sg_scale",),
                               self._ratio_step()))
         # the 7x7 test at a false discovery rate (the chain) or the mean scaled by the
-        # frame's q-value (8-15 spp): the frame's histogram
+        # frame's q-value (from 8 spp): the frame's histogram
         self.frame_shrink = shrinks_by_frame(bool(self.guided), info.spp, self.independent)
         if self.guided or self.frame_shrink:
             q = FDR_Q if self.guided else None
@@ -363,8 +363,7 @@ class Safeguarded(Pipeline):
                                          SHRINK_Z7 if self.independent else 0.0,
                                          b["sg_scale"] if self.scaled else None, t3,
                                          models_covariance(f.spp), (b["sg_fdr_hist"],
-                                         b["sg_fdr_z"], FDR_Q if self.guided else None,
-                                         True)
+                                         b["sg_fdr_z"], FDR_Q if self.guided else None)
                                          if self.guided or self.frame_shrink else None)
         return run
 

@@ -23,8 +23,9 @@ STAT_PLANES = 5
 #: the fewest samples a quarter (half a half) holds for the sampler's convergence to be
 #: measured (:func:`measures_convergence`): from 16 spp
 MIN_QUARTER = 4
-#: the fewest samples a half holds for the blend's bias term to take its windows' means as
-#: they come (:func:`bias_tests`): from 8 spp, the count :data:`MIN_QUARTER` asks of a quarter
+#: the fewest samples a half holds for a method's own blend to leave its 7x7 bias mean
+#: untested, scaled by the frame's q-value instead (:func:`bias_tests`,
+#: :func:`shrinks_by_frame`): from 8 spp, the count :data:`MIN_QUARTER` asks of a quarter
 MIN_TEST_HALF = 4
 #: the fewest samples a half holds for the guided chain's blend to keep its 3x3 test
 #: (:func:`bias_tests`): from 32 spp
@@ -32,13 +33,12 @@ CHAIN_TEST3_HALF = 16
 #: the 7x7 test's histogram at a false discovery rate (kernels/safeguard_fdr.cl): bins of
 #: z = mu7 / se7 a pixel, 1 / FDR_SCALE wide, the last holding z >= FDR_BINS / FDR_SCALE (8)
 FDR_BINS, FDR_SCALE = 256, 32
-#: the frame's mode of z (a null centred off 0: :func:`shrinks_by_frame`): the peak of its
-#: histogram smoothed by a triangle of +-FDR_MODE_RADIUS bins (+-0.25)
+#: the frame's null of z (:func:`shrinks_by_frame`): its histogram's peak, smoothed by a
+#: triangle of +-FDR_MODE_RADIUS bins (+-0.25)
 FDR_MODE_RADIUS = 8
-#: a method's own blend scales its 7x7 bias mean by the frame's q-value from halves of
-#: :data:`MIN_TEST_HALF` samples to halves of this many, excluded (:func:`shrinks_by_frame`):
-#: 8-15 spp
-SHRINK_HALF_END = 8
+#: declared independent samples test the 7x7 bias mean at 2 standard errors below halves of
+#: this many samples (16 spp) and shrink it by its significance from there (:func:`bias_tests`)
+INDEPENDENT_TEST_HALF = 8
 #: the guided chain tests its 7x7 bias mean at every spp (its regression removes the bias
 #: coherent over its windows), at the z where the frame's pixels pass at this false discovery
 #: rate (Benjamini-Hochberg: few true biases in a frame set a high bar, many a low one; the
@@ -91,8 +91,8 @@ def bias_tests(guided: bool, spp: int, independent: bool = False) -> tuple[bool,
     standard errors above zero (``safeguard.GUIDED_Z7``), and whether it keeps the 3x3 mean
     where that stands 2 standard errors above zero (a bias along a thin edge).
 
-    From halves of :data:`MIN_TEST_HALF` samples (8 spp) a method's own halves take the
-    7x7 mean untested (at 8-15 spp scaled by the frame's q-value: :func:`shrinks_by_frame`).
+    From halves of :data:`MIN_TEST_HALF` samples (8 spp) a method's own halves leave the
+    7x7 mean untested: the frame's q-value scales it instead (:func:`shrinks_by_frame`).
     Declared ``independent`` samples test it below 16 spp: at 8 spp +0.25 dB on average
     over the significance shrinkage they take from 16 (-0.18 to +2.15; at 16 spp +0.11,
     at 64 -0.19, ``docs/measurements/frame-shrink/random-512.md``). Below 8 spp the
@@ -112,36 +112,40 @@ def bias_tests(guided: bool, spp: int, independent: bool = False) -> tuple[bool,
     with the lattice the 3x3 test earns its keep (fence +0.25, spheres +0.37, fast_motion
     +0.48 with it). Below 8 spp it was already left out."""
     h = min(halves(int(spp)))
-    test7 = bool(guided) or h < (SHRINK_HALF_END if independent else MIN_TEST_HALF)
+    test7 = bool(guided) or h < (INDEPENDENT_TEST_HALF if independent else MIN_TEST_HALF)
     return test7, not guided or h >= CHAIN_TEST3_HALF
 
 
 def shrinks_by_frame(guided: bool, spp: int, independent: bool = False) -> bool:
     """Whether the blend scales its 7x7 bias mean by ``1 - q``, ``q`` the frame's false
-    discovery rate at the mean's significance with the frame's negative means as its null
-    (``kernels/safeguard_fdr.cl``: ``safeguard_fdr_shrink``, ``centre``): a method's own
-    blend on stratified samples with halves of :data:`MIN_TEST_HALF` to
-    :data:`SHRINK_HALF_END` - 1 samples (8-15 spp), where it took the mean untested.
+    discovery rate at the mean's significance with a null read off the frame
+    (``kernels/safeguard_fdr.cl``: ``safeguard_fdr_shrink``): a method's own blend from
+    halves of :data:`MIN_TEST_HALF` samples (8 spp), where it took the mean untested, unless
+    the samples are declared independent.
 
-    A mean of ``e`` is negative by noise alone, so the frame's negative means tell how many
-    of its positive ones at the same significance are noise: no model of the noise, one
-    constant (:data:`FDR_MODE_RADIUS`); the blend's weight with ``(1 - q) mu7`` minimises
-    the expected error when ``q`` is the chance the mean is noise. Below 16 spp stratified
-    samples' halves overstate the variance (:func:`measures_convergence`), so the noise's
-    means centre below 0 (the frame's mode of z: -0.1 to -1.1 on the built-in scenes at 8
-    spp) and the null is mirrored about the frame's mode (never above 0: a bias only adds
-    to a mean). Measured
-    (``docs/measurements/frame-shrink-pocl.md``, ``tools/frame_shrink_study.py``: the
-    methods' device halves, six scenes) against the untested mean: at 8 spp +0.11 dB on
-    average at 512x512 (-0.13 to +0.66) and +0.07 at 256x256 on other seeds (-0.17 to
-    +0.65); at 12 spp -0.03 and +0.04 (-0.49 to +0.89, huge_coc's gains); mirrored about 0
-    it lost up to 1.0 dB, and the 2-standard-error test up to 0.64. From 16 spp the
-    halves' variances are scaled by the measured convergence and the mean stays untested;
-    below 8 spp, and on declared independent samples below 16 spp, it is tested at 2
-    standard errors (:func:`bias_tests`); the guided chain keeps its own test
+    A mean of ``e`` is positive or negative by noise and positive by a bias as well, so the
+    frame's z histogram holds the noise's distribution as its central peak: a normal
+    matched to that peak (Efron's empirical null: its mode, and its width from the peak's
+    half width at half maximum; a peak above 0 is the biased pixels', and the null then
+    ``N(0, 1)``) says how many of the ``R(t)`` positive means at ``|z| >= t`` are noise.
+    The blend's weight with ``(1 - q) mu7`` minimises the expected error when ``q`` is the
+    chance the mean is noise. A stratified sampler's halves misstate the variance, by
+    different amounts across the frame (its measured factor is one number a frame): the
+    noise's means centre below 0 (the mode of z -0.1 to -1.1 at 8 spp) and, where the
+    halves overstate the variance most, form a heavy negative tail that is no mirror of the
+    noise among the positive means (bokeh at 16 spp: 33 820 means at z <= -3 against
+    10 923 at z >= 3); the peak is what the two share. Its one constant is the peak's
+    smoothing (:data:`FDR_MODE_RADIUS`). Measured (``docs/measurements/frame-shrink-pocl.md``,
+    ``tools/frame_shrink_study.py``: the methods' device halves, six scenes, 512x512)
+    against the untested mean: on the lattice +0.09 / +0.11 / +0.01 / +0.02 dB on average
+    at 8 / 16 / 32 / 64 spp (least -0.43), on undeclared independent samples +0.60 / +0.40
+    / +0.22 / +0.12 (least -0.01); the negative means mirrored about the frame's mode (at
+    8-15 spp until 2026-12-08) lost up to 0.93 dB at 16 spp and 0.51 at 64. Declared
+    independent samples test the mean at 2 standard errors below 16 spp and shrink it by
+    its significance from 16 (:func:`bias_tests`); the guided chain keeps its own test
     (:data:`FDR_Q`)."""
     h = min(halves(int(spp)))
-    return not guided and not independent and MIN_TEST_HALF <= h < SHRINK_HALF_END
+    return not guided and not independent and h >= MIN_TEST_HALF
 
 
 def vector_width(context: cl.Context) -> int:
@@ -263,28 +267,26 @@ class SafeguardPasses:
         :func:`models_covariance`). ``fdr = (hist, z, q)``: the 7x7 test's z is the frame's
         at false discovery rate ``q`` (:meth:`run_fdr`, its two launches between), not
         ``z7``; ``q = None``: ``z`` is the frame's table of factors (:data:`FDR_BINS`
-        floats) that scale a positive 7x7 mean by its significance (:meth:`run_fdr`); a
-        fourth item, ``centre``, as :meth:`run_fdr` takes it."""
+        floats) that scale a positive 7x7 mean by its significance (:meth:`run_fdr`)."""
         ev = self.run_rows(queue, stats, rows, w, h, wait_for, vscale, cov)
         evs = [("safeguard_rows", ev)]
         if fdr is not None:
-            hist, z, q, *centre = fdr
-            evs += [("safeguard_fdr", e) for e in self.run_fdr(
-                queue, rows, hist, z, q, w, h, [ev], bool(centre and centre[0]))]
+            hist, z, q = fdr
+            evs += [("safeguard_fdr", e) for e in self.run_fdr(queue, rows, hist, z, q, w, h,
+                                                              [ev])]
         return evs + [("safeguard_blend", self.run_blend_only(
             queue, rows, box, m, out, error, w, h, mode, write_error, [evs[-1][1]], z7, test3,
             None if fdr is None else fdr[1], 0 if fdr is None else 1 if fdr[2] else 2))]
 
-    def run_fdr(self, queue, rows, hist, z, q: float | None, w, h, wait_for=None,
-                centre: bool = False):
+    def run_fdr(self, queue, rows, hist, z, q: float | None, w, h, wait_for=None):
         """From the row segments, the frame's histogram of its pixels' 7x7 bias means' ``|z|
         = |mu7| / se7`` by sign (``hist``: :meth:`fdr_bytes`), then ``z``: with ``q`` (the
         guided chain's test), one float, the lowest z at which the frame's means pass at
         false discovery rate ``q`` (Benjamini-Hochberg, to 1 / FDR_SCALE); with ``q =
-        None`` (a method's own blend at 8-15 spp: :func:`shrinks_by_frame`), the table of
-        :data:`FDR_BINS` factors ``1 - q-value``, the frame's negative means counting its
-        noise (:func:`~clrecon.methods.safeguard_reference.fdr_shrink_table`), mirrored
-        about the frame's mode of z with ``centre``. Three launches (the rows, their sum, the
+        None`` (a method's own blend from 8 spp: :func:`shrinks_by_frame`), the table of
+        :data:`FDR_BINS` factors ``1 - q-value``, the frame's null a normal matched to its
+        histogram's peak (:func:`~clrecon.methods.safeguard_reference.fdr_shrink_table`).
+        Three launches (the rows, their sum, the
         threshold or table), their events in order."""
         self.fdr_rows.set_args(rows, hist, np.int32(w), np.int32(h),
                                np.int32(self.rows_pitch(w)), np.int32(q is None))
@@ -294,7 +296,7 @@ class SafeguardPasses:
         ev_sum = cl.enqueue_nd_range_kernel(queue, self.fdr_sum, (2 * FDR_BINS,), None,
                                             wait_for=[ev])
         if q is None:
-            self.fdr_shrink.set_args(hist, np.int32(bool(centre)), z)
+            self.fdr_shrink.set_args(hist, z)
             k = self.fdr_shrink
         else:
             self.fdr.set_args(hist, np.int32(w * h), np.float32(q), z)

@@ -88,15 +88,18 @@ def _z_bins(mu7: np.ndarray, var7: np.ndarray) -> np.ndarray:
                     FDR_BINS - 1).astype(np.int64)
 
 
+#: the nulls :func:`shrink_table_of` takes: the shipped ``"normal"`` (the kernels'), and the
+#: frame's negative means mirrored about its mode of z (``"mode"``) or about 0 (``"zero"``),
+#: measured in ``tools/frame_shrink_study.py``
+NULLS = ("normal", "mode", "zero")
+
+
 def fdr_shrink_table(mu7: np.ndarray, var7: np.ndarray, noisy=None,
-                     centre: bool = False) -> np.ndarray:
+                     null: str = "normal") -> np.ndarray:
     """The factors ``1 - q`` by bin of ``|z|`` (``kernels/safeguard_fdr.cl``:
     ``safeguard_fdr_shrink``): ``q_j = min over i <= j of min(1, N(t_i) / R(t_i))``, ``R(t)``
-    the pixels with ``mu7 > 0`` and ``|z| >= t``, ``N(t)`` those with ``mu7 < 0`` and ``|z|
-    >= t`` (1 where ``R(t) = 0``): the frame's false discovery rate with its negative means
-    as the null. ``centre``: the null mirrored about the frame's mode of ``z`` (the first
-    signed bin where its +-:data:`FDR_MODE_RADIUS` bins' counts weighted by a triangle peak)
-    where that lies below 0, not about 0 (a bias only adds to a mean).
+    the pixels with ``mu7 > 0`` and ``|z| >= t``, ``N(t)`` the count the frame's null
+    expects there (:func:`shrink_table_of`; 1 where ``R(t) = 0``).
     ``noisy``: the pixels that count (None: all; the blend's, those whose 7x7 window of box
     shows noise: ``safeguard_fdr_rows``' ``noisy_only``)."""
     j = _z_bins(mu7, var7)
@@ -105,48 +108,92 @@ def fdr_shrink_table(mu7: np.ndarray, var7: np.ndarray, noisy=None,
     b = FDR_BINS
     # the kernels' layout: |z|'s bins of the positive means, then of the negative ones
     return shrink_table_of(np.concatenate([np.bincount(j[mu7 > 0], minlength=b),
-                                           np.bincount(j[mu7 < 0], minlength=b)]), centre)
+                                           np.bincount(j[mu7 < 0], minlength=b)]), null)
 
 
-def shrink_table_of(hist: np.ndarray, centre: bool) -> np.ndarray:
+def normal_null(smoothed: np.ndarray, total: int) -> tuple[float, float, float]:
+    """``(mu, sigma, n0)`` of the frame's null of z, a normal matched to its histogram's
+    central peak (Efron's empirical null): ``smoothed`` the signed bins' counts weighted by
+    a triangle of +-:data:`FDR_MODE_RADIUS` bins. Its mode: the first peak bin ``k`` moved
+    by the vertex of the parabola through it and its neighbours. ``sigma``: the half width
+    at half maximum over ``sqrt(2 ln 2)``, the narrower side's, each side's the distance
+    from ``k`` to where the counts fall below half the peak's, interpolated between the two
+    bins about it (an end of the bins: the distance to one past it). A peak above 0 is the
+    biased pixels', not the noise's, and so is its width: the null is then the theoretical
+    one, centred at 0 with z's own unit spread, its height the counts' just below 0.
+    ``n0``: the normal's count with the peak's height, at most the frame's ``total``. The
+    interpolations keep the fit continuous in the counts: a count moved across a bin's
+    edge (float32 sums against float64) moves it by a fraction of a bin."""
+    w = np.asarray(smoothed, np.int64)
+    n, k = w.size, int(np.argmax(w))
+    if k >= FDR_BINS:
+        mu, sigma, peak = 0.0, 1.0, int(w[FDR_BINS - 1])
+    else:
+        peak, off = int(w[k]), 0.0
+        if 0 < k and w[k - 1] - 2 * peak + w[k + 1] < 0:
+            off = 0.5 * float(w[k - 1] - w[k + 1]) / float(w[k - 1] - 2 * peak + w[k + 1])
+        hw = float(n)
+        for side in (-1, 1):
+            idx = k + side * np.arange(1, n)
+            idx = idx[(idx >= 0) & (idx < n)]
+            below = np.nonzero(2 * w[idx] < peak)[0]
+            if not below.size:
+                hw = min(hw, float(idx.size + 1))
+                continue
+            d = int(below[0]) + 1  # bins from k to the first below half the peak
+            hi, lo = float(w[k + side * (d - 1)]), float(w[k + side * d])
+            hw = min(hw, d - 1 + (hi - 0.5 * peak) / (hi - lo))
+        sigma = hw / (FDR_SCALE * sqrt(2.0 * np.log(2.0)))
+        mu = min((k + off - FDR_BINS + 0.5) / FDR_SCALE, 0.0)
+    n0 = min(peak / (FDR_MODE_RADIUS + 1) ** 2 * sigma * sqrt(2.0 * np.pi) * FDR_SCALE,
+             float(total))
+    return mu, sigma, n0
+
+
+def shrink_table_of(hist: np.ndarray, null: str = "normal") -> np.ndarray:
     """:func:`fdr_shrink_table` from the frame's histogram as ``safeguard_fdr_rows`` lays it
     out, summed over rows (2 FDR_BINS counts: ``|z|``'s bins of the positive means, then of
-    the negative ones)."""
-    b = FDR_BINS
+    the negative ones). ``null``: ``"normal"`` (:func:`normal_null`, what the kernels
+    compute), or the frame's negative means mirrored about its mode (``"mode"``, never
+    above 0) or about 0 (``"zero"``): ``N(t)`` the means with ``z <= 2 mode - t``."""
+    if null not in NULLS:
+        raise ValueError(f"null: one of {NULLS}, got {null!r}")
+    b, r = FDR_BINS, FDR_MODE_RADIUS
     hist = np.asarray(hist, np.int64)
     sc = np.concatenate([hist[b:][::-1], hist[:b]])  # signed bins: z from -b / FDR_SCALE up
-    m = 2 * b - 1
-    if centre:
-        r = FDR_MODE_RADIUS
-        win = np.convolve(sc, r + 1 - np.abs(np.arange(-r, r + 1)))  # a triangle
-        # never above 0: a mode above 0 is the biased pixels', not the noise's
-        m = min(2 * int(np.argmax(win[FDR_MODE_RADIUS:FDR_MODE_RADIUS + 2 * b])), 2 * b - 1)
+    smoothed = np.convolve(sc, r + 1 - np.abs(np.arange(-r, r + 1)))[r:r + 2 * b]
     below = np.concatenate([[0], np.cumsum(sc)])  # below[i]: the bins < i
     top = np.arange(b)
     pos = below[2 * b] - below[b + top]
-    neg = below[np.clip(m - b - top + 1, 0, 2 * b)]
+    if null == "normal":
+        mu, sigma, n0 = normal_null(smoothed, int(below[-1]))
+        neg = n0 * 0.5 * np.array([erfc((t / FDR_SCALE - mu) / (sigma * sqrt(2.0)))
+                                   for t in top])
+    else:
+        m = 2 * b - 1 if null == "zero" else min(2 * int(np.argmax(smoothed)), 2 * b - 1)
+        neg = below[np.clip(m - b - top + 1, 0, 2 * b)]
     with np.errstate(divide="ignore", invalid="ignore"):
         fdr = np.where(pos > 0, np.minimum(1.0, neg / np.maximum(pos, 1)), 1.0)
     return 1.0 - np.minimum.accumulate(fdr)
 
 
-def fdr_shrink(mu7: np.ndarray, var7: np.ndarray, noisy=None, centre: bool = False):
+def fdr_shrink(mu7: np.ndarray, var7: np.ndarray, noisy=None, null: str = "normal"):
     """``mu7`` scaled by its bin's factor (:func:`fdr_shrink_table`) where positive, else 0."""
-    t = fdr_shrink_table(mu7, var7, noisy, centre)
+    t = fdr_shrink_table(mu7, var7, noisy, null)
     return np.where(mu7 > 0, mu7 * t[_z_bins(mu7, var7)], 0.0)
 
 
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
               z7: float = 0.0, test3: bool = True, cov: bool | None = None,
               vscale: float | None = None, fdr_q: float | None = None,
-              frame_shrink: bool = False, centre: bool = False):
+              frame_shrink: bool = False, null: str = "normal"):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
     The halves' variances are scaled by ``vscale`` (None: :func:`variance_scale`, the
     frame's measured factor; 1: declared independent samples); ``cov`` (None: from 16 spp,
     as the pipeline: ``safeguard_passes.models_covariance``) and ``fdr_q`` as for
-    :func:`reference_of_halves`, and ``frame_shrink`` and ``centre``."""
+    :func:`reference_of_halves`, and ``frame_shrink`` and ``null``."""
     s = color.shape[2]
     ha, hb = halves(s)
     if m is None and ma is not None:
@@ -155,13 +202,13 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
     cov = models_covariance(s) if cov is None else bool(cov)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
                                mode, z7, variance_scale(c) if vscale is None else vscale,
-                               test3, cov, fdr_q, frame_shrink, centre)[:2]
+                               test3, cov, fdr_q, frame_shrink, null)[:2]
 
 
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
                         mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0,
                         test3: bool = True, cov: bool = False, fdr_q: float | None = None,
-                        frame_shrink: bool = False, centre: bool = False):
+                        frame_shrink: bool = False, null: str = "normal"):
     """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
     ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
     half estimates, as the guided refinement's blend toward its guide takes) and the
@@ -176,8 +223,8 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     ``e = d2 + vm - vb`` (``safeguard_passes.models_covariance``). ``fdr_q``: the 7x7 test's
     z is :func:`fdr_threshold`'s at that rate (the guided chain), not ``z7``.
     ``frame_shrink``: the 7x7 mean scaled by the frame's q-value (:func:`fdr_shrink`; a
-    method's own blend at 8-15 spp), ``z7`` unused; ``centre``: its null mirrored about the
-    frame's mode (stratified samples)."""
+    method's own blend from 8 spp on undeclared samples), ``z7`` unused; ``null``: its
+    null (:func:`shrink_table_of`; the kernels': ``"normal"``)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     s = ha + hb
     box = (ha * a + hb * b) / s
@@ -199,7 +246,7 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     if frame_shrink or z7 != 0 or fdr_q is not None:  # se7^2
         var7 = np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / _window_count(e.shape, 3)
     if frame_shrink:
-        mu7 = fdr_shrink(mu7, var7, _window_mean(vb, 3) > 0, centre)
+        mu7 = fdr_shrink(mu7, var7, _window_mean(vb, 3) > 0, null)
     elif z7 != 0 or fdr_q is not None:
         z7 = z7 if fdr_q is None else fdr_threshold(mu7, var7, fdr_q)
         with np.errstate(divide="ignore", invalid="ignore"):

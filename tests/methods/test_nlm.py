@@ -17,7 +17,7 @@ from clrecon.core.pipeline import DeviceSamples
 from clrecon.methods import nlm
 from clrecon.methods import safeguard as sg
 from clrecon.methods.safeguard import reference_of_halves
-from clrecon.methods.safeguard_passes import bias_tests, models_covariance
+from clrecon.methods.safeguard_passes import bias_tests, models_covariance, shrinks_by_frame
 from clrecon.methods.safeguard_reference import variance_scale
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
@@ -56,7 +56,8 @@ def test_pipeline_filters_the_halves(device, rng, method, safeguard, guided, spp
                                          buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
                                          sg.GUIDED_Z7 if tests[0] else 0.0, variance_scale(c),
                                          tests[1], models_covariance(buf.spp),
-                                         sg.FDR_Q if guided else None)
+                                         sg.FDR_Q if guided else None,
+                                         shrinks_by_frame(bool(guided), buf.spp))
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
     d = pipe.describe()
     assert d["nlm"] == 3 and d["nlm_scales"] == scales and "nlm" in d["plan"]
@@ -90,7 +91,8 @@ def test_box_filters_its_own_halves(device, rng, safeguard, spp, scales):
         t7, t3 = bias_tests(False, buf.spp)
         want, _, w = reference_of_halves(ua, ub, ha, buf.spp - ha, None, ra, rb, sg.MODE_BLEND,
                                          sg.GUIDED_Z7 if t7 else 0.0, variance_scale(c), t3,
-                                         models_covariance(buf.spp))
+                                         models_covariance(buf.spp), None,
+                                         shrinks_by_frame(False, buf.spp))
         assert_close(image, want, rtol=1e-4, atol=tol, what="image = the safeguard's blend")
         assert 0.0 < w.mean() < 1.0  # a blend, not one of its ends
     d = pipe.describe()

@@ -15,6 +15,7 @@ import pytest
 from conftest import assert_close
 
 from clrecon.methods import safeguard as sg
+from clrecon.methods import safeguard_reference as sr
 from clrecon.methods.safeguard_passes import FDR_BINS, FDR_SCALE, SafeguardPasses
 from clrecon.methods.safeguard_reference import (
     _lum2,
@@ -73,9 +74,14 @@ def test_binned_threshold_brackets_the_exact_procedure(seed):
     assert 1.6 < t < 5.0
 
 
-def _frame(rng, h, w, s, strength):
-    color = rng.random((h, w, s, 3)) * rng.choice([0.5, 4.0], (h, w, 1, 1))
-    ma, mb = (color.mean(2) + 0.2 * rng.random((h, w, 3)) for _ in range(2))
+def _frame(rng, h, w, s, strength, smooth=False):
+    """Samples, and a method's image and halves with a biased patch of ``strength``; the
+    halves the samples' means plus noise, or with ``smooth`` the samples' expectation plus
+    a little (a method smoother than box: the noise's 7x7 means centre near 0)."""
+    scale = rng.choice([0.5, 4.0], (h, w, 1, 1))
+    color = rng.random((h, w, s, 3)) * scale
+    base = 0.5 * scale[:, :, 0] if smooth else color.mean(2)
+    ma, mb = (base + (0.01 if smooth else 0.2) * rng.random((h, w, 3)) for _ in range(2))
     m = 0.5 * (ma + mb)
     m[h // 3: h // 3 + 6, w // 4: w // 4 + 9] += strength  # a biased patch
     return color, m, ma, mb
@@ -94,10 +100,10 @@ def _mu_var(color, m, ma, mb):
     return mu7, np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / _window_count(e.shape, 3)
 
 
-def _device(device, vw, color, m, ma, mb, shrink=False, centre=False):
+def _device(device, vw, color, m, ma, mb, shrink=False):
     """(z, image) of the passes as the chain's blend runs them; ``shrink``: (table, image,
-    the frame's histogram) as a method's own blend at 8-15 spp runs them (the 3x3 test
-    kept; ``centre``: the null about the frame's mode)."""
+    the frame's histogram) as a method's own blend from 8 spp runs them (the 3x3 test
+    kept)."""
     ctx, q = device.context, device.queue
     h, w, s, _ = color.shape
     passes, mf = SafeguardPasses(ctx, vw), cl.mem_flags
@@ -118,7 +124,7 @@ def _device(device, vw, color, m, ma, mb, shrink=False, centre=False):
     ev = passes.run_stats(q, bufs["color"], bufs["m"], bufs["ma"], bufs["mb"], box, stats,
                           w, h, s, 1)
     passes.run_blend(q, stats, rows, box, bufs["m"], out, err, w, h, sg.MODE_BLEND, 1, [ev],
-                     sg.GUIDED_Z7, None, shrink, False, (hist, z, fq, centre))[-1][1].wait()
+                     sg.GUIDED_Z7, None, shrink, False, (hist, z, fq))[-1][1].wait()
     img = np.empty((h, w, 3), np.float32)
     if shrink:
         table, total = np.empty(FDR_BINS, np.float32), np.empty(2 * FDR_BINS, np.int32)
@@ -154,33 +160,37 @@ def test_kernels_match_reference(device, vw, w, strength):
 
 
 def test_shrink_table_known_answers():
-    """``1 - q``, ``q`` the least ``N(t) / R(t)`` at or below each bin: 100 noise pixels on
-    each side at |z| 0.5 and 50 biased at z 5 give q = 100 / 150 from 0 to 0.5, then 0
-    (R = 50, N = 0) up to 5 and beyond (R = 0 there: 1, but the least below is 0)."""
+    """``1 - q``, ``q`` the least ``N(t) / R(t)`` at or below each bin, the null the frame's
+    negative means mirrored about 0: 100 noise pixels on each side at |z| 0.5 and 50 biased
+    at z 5 give q = 100 / 150 from 0 to 0.5, then 0 (R = 50, N = 0) up to 5 and beyond
+    (R = 0 there: 1, but the least below is 0)."""
     mu = np.array([0.5] * 100 + [-0.5] * 100 + [5.0] * 50)
-    table = fdr_shrink_table(mu, np.ones_like(mu))
+    table = fdr_shrink_table(mu, np.ones_like(mu), null="zero")
     edge = int(0.5 * FDR_SCALE)  # the bin that holds |z| = 0.5
     assert np.allclose(table[:edge + 1], 1 - 100 / 150)
     assert np.all(table[edge + 1:] == 1.0)
     # noise alone (as many negative as positive at every |z|): every positive mean is 0
     mu = np.random.default_rng(1).normal(size=4000)
     mu = np.concatenate([mu, -mu])
-    assert np.all(fdr_shrink(mu, np.ones_like(mu)) == 0.0)
+    assert np.all(fdr_shrink(mu, np.ones_like(mu), null="zero") == 0.0)
     # no negative mean: nothing is noise, every positive mean as it is
     mu = np.abs(mu) + 0.01
-    assert np.array_equal(fdr_shrink(mu, np.ones_like(mu)), mu)
+    assert np.array_equal(fdr_shrink(mu, np.ones_like(mu), null="zero"), mu)
     # the negative means of windows without noise do not count
     neg = np.concatenate([mu, -mu])
     quiet = np.arange(neg.size) >= mu.size
-    assert np.array_equal(fdr_shrink(neg, np.ones_like(neg), ~quiet)[~quiet], mu)
-    # a factor never rises as |z| falls, and lies in [0, 1]
+    assert np.array_equal(fdr_shrink(neg, np.ones_like(neg), ~quiet, "zero")[~quiet], mu)
+    # a factor never rises as |z| falls, and lies in [0, 1], for every null
     mu = np.random.default_rng(2).normal(0.5, 1.0, 5000)
-    t = fdr_shrink_table(mu, np.ones_like(mu))
-    assert np.all(np.diff(t) >= 0) and t.min() >= 0.0 and t.max() <= 1.0 and t.max() > 0.5
+    for null in ("normal", "mode", "zero"):
+        t = fdr_shrink_table(mu, np.ones_like(mu), null=null)
+        assert np.all(np.diff(t) >= 0) and t.min() >= 0.0 and t.max() <= 1.0 and t.max() > 0.5
+    with pytest.raises(ValueError, match="null"):
+        fdr_shrink_table(mu, np.ones_like(mu), null="half")
 
 
 def test_shrink_table_centred_known_answers():
-    """Mirrored about the frame's mode (``centre``) or about 0, on z at the signed bins'
+    """Mirrored about the frame's mode (``null="mode"``) or about 0, on z at the signed bins'
     centres: 200 pixels at the mode (z -0.98), 100 at 2 below it (-2.98), 100 at 2 above
     (+1.02: their mirror image) and 50 at +5.02. About the mode, the 100 above are noise as
     likely as not against 150 positive: 1/3 up to their bin, 1 beyond; about 0 the 200 at
@@ -191,35 +201,81 @@ def test_shrink_table_centred_known_answers():
     mu = np.array(at(mode, 200) + at(mode - 64, 100) + at(mode + 64, 100) + at(FDR_BINS + 160,
                                                                                50))
     one = np.ones_like(mu)
-    centred, zero = fdr_shrink_table(mu, one, centre=True), fdr_shrink_table(mu, one)
+    centred, zero = (fdr_shrink_table(mu, one, null=n) for n in ("mode", "zero"))
     assert np.allclose(centred[:33], 1 / 3) and np.all(centred[33:] == 1.0)
     assert np.all(zero[:32] == 0.0) and np.allclose(zero[32:96], 1 / 3)
     assert np.all(zero[96:] == 1.0)
     # a mode above 0 is the biased pixels': the null stays about 0
     mu = np.concatenate([mu, at(FDR_BINS + 64, 1000)])
     one = np.ones_like(mu)
-    assert np.array_equal(fdr_shrink_table(mu, one, centre=True), fdr_shrink_table(mu, one))
-    assert fdr_shrink_table(mu, one)[64] > 0.5
+    zero = fdr_shrink_table(mu, one, null="zero")
+    assert np.array_equal(fdr_shrink_table(mu, one, null="mode"), zero) and zero[64] > 0.5
 
 
-@pytest.mark.parametrize("centre", [False, True])
+def _signed_hist(counts):
+    """The kernels' histogram layout from counts by signed bin (2 FDR_BINS, z from
+    -FDR_BINS / FDR_SCALE up)."""
+    counts = np.asarray(counts, np.int64)
+    return np.concatenate([counts[FDR_BINS:], counts[:FDR_BINS][::-1]])
+
+
+def _normal_counts(n, mu, sigma):
+    """n pixels spread over the signed bins as a normal N(mu, sigma^2) of z would be."""
+    edges = (np.arange(2 * FDR_BINS + 1) - FDR_BINS) / FDR_SCALE
+    cdf = np.array([NormalDist(mu, sigma).cdf(e) for e in edges])
+    return np.round(n * np.diff(cdf)).astype(np.int64)
+
+
+def _smoothed(counts):
+    """Signed bins' counts weighted by the kernels' triangle (safeguard_fdr_shrink)."""
+    r = sr.FDR_MODE_RADIUS
+    return np.convolve(counts, r + 1 - np.abs(np.arange(-r, r + 1)))[r:r + 2 * FDR_BINS]
+
+
+def test_normal_null_known_answers():
+    """The normal null matched to the frame's peak: 200 000 noise pixels as N(-0.5, 1.3^2)
+    give back its mode, width and count (to a bin, 3% and 3%), and 2000 biased ones at z 5
+    keep their mean (their factor near 1) while a positive mean at z 1 is mostly noise. A
+    heavy negative tail (windows whose halves overstate the variance) leaves the table as
+    it is, where the mirrored null would count it as noise among the positive means. A peak
+    above 0 is the biased pixels': the null is then N(0, 1). An empty frame gives factors
+    0."""
+    noise = _normal_counts(200_000, -0.5, 1.3)
+    biased = np.zeros(2 * FDR_BINS, np.int64)
+    biased[FDR_BINS + 160] = 2000  # z 5.0 to 5.03
+    mu, sigma, n0 = sr.normal_null(_smoothed(noise + biased), int((noise + biased).sum()))
+    assert abs(mu + 0.5) <= 1.0 / FDR_SCALE, mu
+    assert abs(sigma / 1.3 - 1) < 0.03 and abs(n0 / 200_000 - 1) < 0.03, (sigma, n0)
+    table = shrink_table_of(_signed_hist(noise + biased))
+    assert table[160] > 0.99 and table[32] < 0.5
+    tail = noise.copy()
+    tail[FDR_BINS - 192:FDR_BINS - 128] += 500  # 32 000 means at z -6 to -4
+    assert np.array_equal(shrink_table_of(_signed_hist(tail + biased)), table)
+    assert shrink_table_of(_signed_hist(tail + biased), "mode")[128] < 0.5 < table[128]
+    up = _normal_counts(200_000, 0.8, 1.0)
+    assert sr.normal_null(_smoothed(up), int(up.sum()))[:2] == (0.0, 1.0)
+    assert np.array_equal(shrink_table_of(np.zeros(2 * FDR_BINS, np.int64)),
+                          np.zeros(FDR_BINS))
+
+
 @pytest.mark.parametrize("vw", [1, 16])
 @pytest.mark.parametrize("w, strength", [(37, 0.6), (64, 1.2), (33, 0.0)])
-def test_shrink_kernels_match_reference(device, vw, w, strength, centre):
+def test_shrink_kernels_match_reference(device, vw, w, strength):
     rng = np.random.default_rng(3 * w + vw)
-    color, m, ma, mb = _frame(rng, 40, w, 8, strength)
+    color, m, ma, mb = _frame(rng, 40, w, 8, strength, smooth=True)
     # a block without noise (every sample alike) whose means are rounding: not counted
     color[-12:, :12] = 0.3
     ma[-12:, :12] = mb[-12:, :12] = m[-12:, :12] = 0.3 + 1e-7 * rng.random((12, 12, 3))
-    table, img, total = _device(device, vw, color, m, ma, mb, shrink=True, centre=centre)
-    # the table from the kernels' own histogram, exactly (float32 against float64)
-    assert np.allclose(table, shrink_table_of(total, centre), rtol=0, atol=2e-7)
+    table, img, total = _device(device, vw, color, m, ma, mb, shrink=True)
+    # the table from the kernels' own histogram (the null's fit to the bin, its tail in
+    # float32 against float64)
+    assert np.allclose(table, shrink_table_of(total), rtol=0, atol=2e-6)
     f32 = [x.astype(np.float32) for x in (color, m, ma, mb)]
     mu7, var7 = _mu_var(*f32)
     c = f32[0].astype(np.float64)
     noisy = _window_mean(_lum2(c[:, :, :4].mean(2) - c[:, :, 4:].mean(2)), 3) > 0
     assert not noisy.all()
-    want_t = fdr_shrink_table(mu7, var7, noisy, centre)
+    want_t = fdr_shrink_table(mu7, var7, noisy)
     # float32 sums against float64 ones: a pixel at a bin's edge may fall either side
     j = np.minimum(np.floor(np.abs(mu7) / np.sqrt(var7) * FDR_SCALE), FDR_BINS - 1)
     want_h = [np.bincount(j[sel & noisy].astype(int), minlength=FDR_BINS)
@@ -227,14 +283,14 @@ def test_shrink_kernels_match_reference(device, vw, w, strength, centre):
     assert np.abs(total - np.concatenate(want_h)).sum() <= 4
     if not np.array_equal(total, np.concatenate(want_h)):
         return  # a moved count may move the mode: the table from the kernels' is checked
-    assert np.abs(table - want_t).max() <= 1e-6
-    want, _ = sg.reference(*f32, test3=True, vscale=1.0, frame_shrink=True, centre=centre)
+    assert np.abs(table - want_t).max() <= 2e-6
+    want, _ = sg.reference(*f32, test3=True, vscale=1.0, frame_shrink=True)
     if strength:  # the biased patch keeps its mean: the factors at its z are near 1
         assert want_t[-1] > 0.9
     scale = float(np.abs(want).max())
     bad = np.abs(img - want).max(-1) > 1e-4 * scale  # pixels at a bin's edge, if any
     assert bad.mean() < 0.02, bad.mean()
     assert_close(img[~bad], want[~bad], rtol=1e-4, atol=1e-5 * scale, what=f"vw={vw} w={w}")
-    if strength and not centre:  # the frame's factors, not the untested mean
+    if strength:  # the frame's factors, not the untested mean
         untested, _ = sg.reference(*f32, test3=True, vscale=1.0)
         assert np.abs(untested - want).max() > 1e-3 * scale

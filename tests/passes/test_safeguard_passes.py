@@ -196,13 +196,13 @@ def test_bias_tests_rule():
 
 
 def test_shrinks_by_frame_rule():
-    """The frame's q-value scales a method's own 7x7 mean with halves of 4-7 samples (8-15
-    spp; 15 spp's are 7 and 8), never the guided chain's nor declared independent
-    samples' (which test it there: bias_tests)."""
-    from clrecon.methods.safeguard_passes import SHRINK_HALF_END, shrinks_by_frame
-    assert SHRINK_HALF_END == 8
+    """The frame's q-value scales a method's own 7x7 mean from halves of 4 samples (8 spp;
+    9 spp's are 4 and 5), never the guided chain's nor declared independent samples' (which
+    test it below 16 spp and shrink it by its significance from there: bias_tests)."""
+    from clrecon.methods.safeguard_passes import INDEPENDENT_TEST_HALF, shrinks_by_frame
+    assert INDEPENDENT_TEST_HALF == 8
     for s in range(2, 70):
-        assert shrinks_by_frame(False, s) == (8 <= s < 16), s
+        assert shrinks_by_frame(False, s) == (s >= 8), s
         assert not shrinks_by_frame(True, s) and not shrinks_by_frame(False, s, True)
 
 
