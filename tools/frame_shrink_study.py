@@ -7,15 +7,18 @@ independent samples); every method's default runs on the device and its halves' 
 ``mA``, ``mB`` are read back; the blend is then recomputed on the host in float64 by the
 safeguard's NumPy reference (``clrecon.methods.safeguard_reference``) with the 7x7 mean:
 
-* ``untested``: as it comes (the lattice's form from 8 spp);
-* ``2 se``: tested at 2 standard errors (every form below 8 spp);
+* ``untested``: as it comes (the lattice's form from 16 spp until 2026-12-08);
+* ``2 se``: tested at 2 standard errors (every form below 8 spp, declared independent
+  samples' below 16);
 * ``shrink``: shrunk by its significance, ``mu7 max(0, 1 - se7^2 / mu7^2)`` (independent
   samples declared, from 16 spp);
-* ``q about 0``: scaled by ``1 - q``, ``q`` the frame's false discovery rate at the mean's
-  significance with its negative means as the null, mirrored about 0 (independent samples
-  declared, 8-15 spp: ``safeguard_passes.shrinks_by_frame``);
-* ``q about mode``: the same with the null mirrored about the frame's mode of ``z``
-  (stratified samples, 8-15 spp).
+* ``q normal``: scaled by ``1 - q``, ``q`` the frame's false discovery rate at the mean's
+  significance with a normal null matched to the frame's histogram of z (its central peak:
+  Efron's empirical null), the undeclared samples' form from 8 spp
+  (``safeguard_passes.shrinks_by_frame``, since 2026-12-08);
+* ``q about 0``: the same with the frame's negative means as the null, mirrored about 0;
+* ``q about mode``: the same mirrored about the frame's mode of ``z`` (the lattice's form at
+  8-15 spp on 2026-12-07).
 
 The halves' variances are scaled as the pipeline scales them: the lattice's by its measured
 convergence from 16 spp, independent samples' not at all. PSNR dB against the converged
@@ -46,15 +49,16 @@ from clrecon.scenes.render import render_reference, render_samples
 
 SCENES = "fence,spheres,bokeh,deep,huge_coc,fast_motion"
 FORMS = {"untested": {}, "2 se": {"z7": sg.GUIDED_Z7}, "shrink": {"z7": sg.SHRINK_Z7},
-         "q about 0": {"frame_shrink": True}, "q about mode": {"frame_shrink": True,
-                                                              "centre": True}}
+         "q normal": {"frame_shrink": True},
+         "q about 0": {"frame_shrink": True, "null": "zero"},
+         "q about mode": {"frame_shrink": True, "null": "mode"}}
 
 
 def pipeline_form(spp: int) -> str:
     """The form a method's own blend takes on stratified samples (``bias_tests``,
     ``shrinks_by_frame``)."""
     return "2 se" if bias_tests(False, spp)[0] else (
-        "q about mode" if shrinks_by_frame(False, spp) else "untested")
+        "q normal" if shrinks_by_frame(False, spp) else "untested")
 
 
 def measure(name: str, size: int, spp: int, sampler: str, forms, dev, ref, seed: int,
@@ -121,9 +125,9 @@ def main(argv=None) -> None:
     ap.add_argument("--scenes", default=SCENES)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--spp", default="8,16,64")
-    ap.add_argument("--sampler", choices=("lattice", "random"), default="random")
+    ap.add_argument("--sampler", choices=("lattice", "random"), default="lattice")
     ap.add_argument("--seed", type=int, default=100, help="samples: seed + spp")
-    ap.add_argument("--forms", default="shrink,q about 0,q about mode,untested,2 se")
+    ap.add_argument("--forms", default="untested,q normal,q about mode,2 se")
     ap.add_argument("--out", default=None)
     ap.add_argument("--figures", default=None, metavar="DIR",
                     help="write DIR/<scene>_<spp>spp_<method>.png per frame (error maps)")

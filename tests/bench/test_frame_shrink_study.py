@@ -17,7 +17,7 @@ fs = load_tool("frame_shrink_study")
 
 def test_pipeline_forms():
     assert [fs.pipeline_form(s) for s in (4, 7, 8, 15, 16, 64)] == [
-        "2 se", "2 se", "q about mode", "q about mode", "untested", "untested"]
+        "2 se", "2 se", "q normal", "q normal", "q normal", "q normal"]
     assert set(fs.FORMS) >= {fs.pipeline_form(s) for s in range(2, 70)}
 
 
@@ -36,9 +36,8 @@ def test_tiny_scene_end_to_end(device, sampler):
 def test_figure_of_a_tiny_scene(device, tmp_path):
     ref = render.render_reference(fs.get_scene("fence"), 24, 24, spp=64)
     images = {}
-    fs.measure("fence", 24, 8, "lattice", ["untested", "q about mode"], device, ref, 100,
-               images)
-    assert set(images) >= {"box", ("splat", "untested"), ("splat", "q about mode")}
+    fs.measure("fence", 24, 8, "lattice", ["untested", "q normal"], device, ref, 100, images)
+    assert set(images) >= {"box", ("splat", "untested"), ("splat", "q normal")}
     path = tmp_path / "fence_8spp_splat.png"
-    fs.figure(path, ref, images, "splat", ["untested", "q about mode"], "fence")
+    fs.figure(path, ref, images, "splat", ["untested", "q normal"], "fence")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
