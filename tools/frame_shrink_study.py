@@ -41,7 +41,15 @@ from clrecon.bench.figures import pyplot, save_png
 from clrecon.bench.scripts import emit_page
 from clrecon.core.device import get_device
 from clrecon.methods import safeguard as sg
-from clrecon.methods.safeguard_passes import bias_tests, models_covariance, shrinks_by_frame
+from clrecon.methods import safeguard_reference as sr
+from clrecon.methods.safeguard_passes import (
+    FDR_BINS,
+    FDR_MODE_RADIUS,
+    FDR_SCALE,
+    bias_tests,
+    models_covariance,
+    shrinks_by_frame,
+)
 from clrecon.methods.safeguard_reference import halves, reference_of_halves, variance_scale
 from clrecon.metrics import psnr
 from clrecon.scenes.builtin import get_scene
@@ -65,7 +73,8 @@ def measure(name: str, size: int, spp: int, sampler: str, forms, dev, ref, seed:
             images: dict | None = None):
     """{method: {form: PSNR}} and box's PSNR for one frame. On the lattice the form the
     pipeline takes is checked against the device's own image (to 0.02 dB). ``images``: a
-    dict that receives each (method, form)'s image, and ``"box"``."""
+    dict that receives each (method, form)'s image, each (method, "z")'s histogram of the
+    frame's 7x7 bias means' z (``safeguard_reference.z_histogram``), and ``"box"``."""
     buf = render_samples(get_scene(name), size, size, spp, seed=seed + spp, device=dev,
                          sampler=sampler)
     c = buf.color.astype(np.float64)
@@ -85,6 +94,10 @@ def measure(name: str, size: int, spp: int, sampler: str, forms, dev, ref, seed:
             row[f] = psnr(img.astype(np.float32), ref)
             if images is not None:
                 images[method, f] = img
+        if images is not None:
+            _, vb, _, e, _ = sr.bias_terms(a, b, ha, hb, None, ma, mb, vscale,
+                                           models_covariance(spp))
+            images[method, "z"] = sr.z_histogram(*sr.window7(e), sr.noisy7(vb))
         out[method] = row
         own = pipeline_form(spp)
         if sampler == "lattice" and own in row and abs(row[own] - psnr(got, ref)) > 0.02:
@@ -120,6 +133,40 @@ def figure(path, ref, images: dict, method: str, forms, title: str) -> None:
     save_png(fig, path)
 
 
+def z_figure(path, hist, title: str) -> None:
+    """A PNG of the frame's histogram of its 7x7 bias means' z (signed, log counts) with the
+    nulls the q-value can take: the normal matched to its peak (the kernels'), and the
+    negative means mirrored about the frame's mode (never above 0), whose positive side
+    is what that null counts as noise."""
+    plt = pyplot()
+    b = FDR_BINS
+    hist = np.asarray(hist, np.int64)
+    sc = np.concatenate([hist[b:][::-1], hist[:b]])
+    z = (np.arange(2 * b) - b + 0.5) / FDR_SCALE
+    r = FDR_MODE_RADIUS
+    smoothed = np.convolve(sc, r + 1 - np.abs(np.arange(-r, r + 1)))[r:r + 2 * b]
+    mu, sigma, n0 = sr.normal_null(smoothed, int(sc.sum()))
+    normal = n0 / (sigma * np.sqrt(2 * np.pi)) * np.exp(-0.5 * ((z - mu) / sigma) ** 2) \
+        / FDR_SCALE
+    m = min(2 * int(np.argmax(smoothed)), 2 * b - 1)  # the mirror: bin k to m - k
+    mirror = np.where(z > 0, sc[np.clip(m - np.arange(2 * b), 0, 2 * b - 1)], np.nan)
+    fig, ax = plt.subplots(figsize=(7.0, 3.6))
+    ax.step(z[1:-1], np.maximum(sc[1:-1], 0.5), where="mid", color="k", lw=0.8,
+            label="the frame's 7x7 means")
+    ax.plot(z, np.maximum(normal, 0.5), color="tab:blue",
+            label=f"normal null (shipped): mode {mu:.2f}, sigma {sigma:.2f}")
+    ax.plot(z, np.maximum(mirror, 0.5), color="tab:red", ls="--",
+            label="negative means mirrored about the mode")
+    ax.axvline(0.0, color="grey", lw=0.5)
+    ax.set_yscale("log")
+    ax.set_xlabel("z = mu7 / se7 (the last bins, |z| >= 8, left out)")
+    ax.set_ylabel("pixels per bin (1/32)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    save_png(fig, path)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", default=SCENES)
@@ -130,7 +177,8 @@ def main(argv=None) -> None:
     ap.add_argument("--forms", default="untested,q normal,q about mode,2 se")
     ap.add_argument("--out", default=None)
     ap.add_argument("--figures", default=None, metavar="DIR",
-                    help="write DIR/<scene>_<spp>spp_<method>.png per frame (error maps)")
+                    help="write DIR/<scene>_<spp>spp_<method>.png per frame (error maps) "
+                         "and <...>_z.png (the frame's z histogram and its nulls)")
     ap.add_argument("--figure-method", default="splat", choices=METHODS)
     args = ap.parse_args(argv)
     forms = args.forms.split(",")
@@ -151,9 +199,11 @@ def main(argv=None) -> None:
             res, box = measure(name, args.size, spp, args.sampler, forms, dev, ref, args.seed,
                                images)
             if images and (args.figure_method, forms[0]) in images:
-                figure(Path(args.figures) / f"{name}_{spp}spp_{args.figure_method}.png", ref,
-                       images, args.figure_method, forms, f"{name}, {spp} spp, "
-                       f"{args.size}x{args.size}, {args.sampler}: {args.figure_method}")
+                what = (f"{name}, {spp} spp, {args.size}x{args.size}, {args.sampler}: "
+                        f"{args.figure_method}")
+                stem = Path(args.figures) / f"{name}_{spp}spp_{args.figure_method}"
+                figure(f"{stem}.png", ref, images, args.figure_method, forms, what)
+                z_figure(f"{stem}_z.png", images[args.figure_method, "z"], what)
             for method, row in res.items():
                 first = row[forms[0]]
                 for f in forms[1:]:

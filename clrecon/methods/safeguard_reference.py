@@ -102,13 +102,18 @@ def fdr_shrink_table(mu7: np.ndarray, var7: np.ndarray, noisy=None,
     expects there (:func:`shrink_table_of`; 1 where ``R(t) = 0``).
     ``noisy``: the pixels that count (None: all; the blend's, those whose 7x7 window of box
     shows noise: ``safeguard_fdr_rows``' ``noisy_only``)."""
+    return shrink_table_of(z_histogram(mu7, var7, noisy), null)
+
+
+def z_histogram(mu7: np.ndarray, var7: np.ndarray, noisy=None) -> np.ndarray:
+    """The frame's counts of ``|z|`` by sign as ``safeguard_fdr_rows`` and
+    ``safeguard_fdr_sum`` lay them out (2 FDR_BINS: the positive means' bins, then the
+    negative ones'); ``noisy`` as for :func:`fdr_shrink_table`."""
     j = _z_bins(mu7, var7)
     if noisy is not None:
         mu7 = np.where(noisy, mu7, 0.0)
-    b = FDR_BINS
-    # the kernels' layout: |z|'s bins of the positive means, then of the negative ones
-    return shrink_table_of(np.concatenate([np.bincount(j[mu7 > 0], minlength=b),
-                                           np.bincount(j[mu7 < 0], minlength=b)]), null)
+    return np.concatenate([np.bincount(j[mu7 > 0], minlength=FDR_BINS),
+                           np.bincount(j[mu7 < 0], minlength=FDR_BINS)])
 
 
 def normal_null(smoothed: np.ndarray, total: int) -> tuple[float, float, float]:
@@ -205,6 +210,40 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
                                test3, cov, fdr_q, frame_shrink, null)[:2]
 
 
+def window7(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(mu7, se7^2)``: each pixel's 7x7 mean of ``e`` and its squared standard error (the
+    windows clipped to the image), as the blend and ``safeguard_fdr_rows`` take them."""
+    mu7 = _window_mean(e, 3)
+    return mu7, np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / _window_count(e.shape, 3)
+
+
+def noisy7(vb: np.ndarray) -> np.ndarray:
+    """The pixels whose 7x7 window of box shows noise (``vb`` not 0 throughout): those the
+    frame's histogram of z counts (``safeguard_fdr_rows``' ``noisy_only``)."""
+    return _window_mean(vb, 3) > 0
+
+
+def bias_terms(a, b, ha: int, hb: int, m=None, ma=None, mb=None, vscale: float = 1.0,
+               cov: bool = False):
+    """``(box, vb, vm, e, m)`` of :func:`reference_of_halves` (float64): box and its
+    variance ``vb`` from the halves ``a``, ``b``; with the method's halves, the method's
+    variance ``vm``, each pixel's bias term ``e`` (``d2 - vm - vb``, with ``cov`` ``d2 + vm
+    - vb``) and the method's image ``m`` (None: the halves' mean); else those three None."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    s = ha + hb
+    box = (ha * a + hb * b) / s
+    k = ha * hb / (s * s)
+    vb = vscale * k * _lum2(a - b)
+    if ma is None:
+        return box, vb, None, None, None
+    if m is None:
+        m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
+    m = m.astype(np.float64)
+    vm = vscale * k * _lum2(ma.astype(np.float64) - mb)
+    d2 = _lum2(m - box)
+    return box, vb, vm, (d2 + vm - vb if cov else d2 - vm - vb), m
+
+
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
                         mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0,
                         test3: bool = True, cov: bool = False, fdr_q: float | None = None,
@@ -225,28 +264,17 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     ``frame_shrink``: the 7x7 mean scaled by the frame's q-value (:func:`fdr_shrink`; a
     method's own blend from 8 spp on undeclared samples), ``z7`` unused; ``null``: its
     null (:func:`shrink_table_of`; the kernels': ``"normal"``)."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    s = ha + hb
-    box = (ha * a + hb * b) / s
-    k = ha * hb / (s * s)
-    vb = vscale * k * _lum2(a - b)
-    vb3 = _window_mean(vb, 1)
     if mode == MODE_BOX:
-        return box, np.minimum(vb3, _FLT_MAX), None
-    if m is None:
-        m = (ha * ma.astype(np.float64) + hb * mb.astype(np.float64)) / s
-    m = m.astype(np.float64)
-    d2 = _lum2(m - box)
-    vm = vscale * k * _lum2(ma.astype(np.float64) - mb)
-    e = d2 + vm - vb if cov else d2 - vm - vb
+        box, vb = bias_terms(a, b, ha, hb, vscale=vscale)[:2]
+        return box, np.minimum(_window_mean(vb, 1), _FLT_MAX), None
+    box, vb, vm, e, m = bias_terms(a, b, ha, hb, m, ma, mb, vscale, cov)
+    vb3 = _window_mean(vb, 1)
     mu3 = _window_mean(e, 1)
     n3 = _window_count(e.shape, 1)
     se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
-    mu7 = _window_mean(e, 3)
-    if frame_shrink or z7 != 0 or fdr_q is not None:  # se7^2
-        var7 = np.maximum(_window_mean(e * e, 3) - mu7 * mu7, 0.0) / _window_count(e.shape, 3)
+    mu7, var7 = window7(e)
     if frame_shrink:
-        mu7 = fdr_shrink(mu7, var7, _window_mean(vb, 3) > 0, null)
+        mu7 = fdr_shrink(mu7, var7, noisy7(vb), null)
     elif z7 != 0 or fdr_q is not None:
         z7 = z7 if fdr_q is None else fdr_threshold(mu7, var7, fdr_q)
         with np.errstate(divide="ignore", invalid="ignore"):

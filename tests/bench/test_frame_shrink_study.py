@@ -37,7 +37,13 @@ def test_figure_of_a_tiny_scene(device, tmp_path):
     ref = render.render_reference(fs.get_scene("fence"), 24, 24, spp=64)
     images = {}
     fs.measure("fence", 24, 8, "lattice", ["untested", "q normal"], device, ref, 100, images)
-    assert set(images) >= {"box", ("splat", "untested"), ("splat", "q normal")}
+    assert set(images) >= {"box", ("splat", "untested"), ("splat", "q normal"), ("splat", "z")}
     path = tmp_path / "fence_8spp_splat.png"
     fs.figure(path, ref, images, "splat", ["untested", "q normal"], "fence")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the z histogram is the frame's: one count a noisy pixel, in the kernels' layout
+    hist = images["splat", "z"]
+    assert hist.shape == (2 * fs.FDR_BINS,) and 0 < hist.sum() <= 24 * 24
+    zpath = tmp_path / "fence_8spp_splat_z.png"
+    fs.z_figure(zpath, hist, "fence")
+    assert zpath.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
