@@ -78,6 +78,7 @@ from clrecon.bench.timing import duration_text
 from clrecon.core.device import Device, DeviceSpec, get_device
 from clrecon.core.errors import ClreconError
 from clrecon.core.fsutil import write_atomic
+from clrecon.core.resources import code_digest
 from clrecon.io import load_image, save_image
 from clrecon.metrics import psnr
 from clrecon.scenes import get_scene, render_reference, render_samples
@@ -228,7 +229,8 @@ def converge(scenes: Sequence[str] | None = None, methods: Sequence[str] | None 
     abl = ablation_settings(methods, probe) if ablation_spp else []
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    cells = out / "cells" / (f"{w}x{h}" if sampler == "lattice" else f"{w}x{h}-{sampler}")
+    cells = out / "cells" / code_digest() / (f"{w}x{h}" if sampler == "lattice"
+                                             else f"{w}x{h}-{sampler}")
     scene_objs = {n: get_scene(n) for n in scenes}
     ref_spps = {n: int(ref_spp or s.reference_spp) for n, s in scene_objs.items()}
     # per spp, the settings measured at it (an ablation's cells share a main setting's key)

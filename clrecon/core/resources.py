@@ -6,6 +6,8 @@
 """
 from __future__ import annotations
 
+import hashlib
+from functools import lru_cache
 from importlib import resources
 from pathlib import Path
 
@@ -18,3 +20,20 @@ def kernels_dir() -> Path:
 def tuning_dir() -> Path:
     """Directory holding ``<runtime>/<device>.json`` tuning databases."""
     return Path(str(resources.files("clrecon.tuning")))
+
+
+@lru_cache(maxsize=1)
+def code_digest() -> str:
+    """16 hex digits of a SHA-256 over the library's code as this process loaded it: every
+    ``.py`` file of the ``clrecon`` package and every ``.cl`` and ``.h`` file of
+    :func:`kernels_dir`, by relative path and content. Caches of measured results key on
+    it, so a change to any pass or method never reuses a number the old code made."""
+    h = hashlib.sha256()
+    pkg = Path(__file__).resolve().parents[1]
+    files = [(f"clrecon/{p.relative_to(pkg).as_posix()}", p) for p in pkg.rglob("*.py")]
+    kdir = kernels_dir()
+    files += [(f"kernels/{p.relative_to(kdir).as_posix()}", p) for p in kdir.rglob("*")
+              if p.suffix in (".cl", ".h")]
+    for name, path in sorted(files):
+        h.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()[:16]

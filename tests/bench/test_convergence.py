@@ -14,6 +14,7 @@ from clrecon.bench.trade import TRADES
 from clrecon.cli import main
 from clrecon.core import device as cldev
 from clrecon.core.errors import DeviceError
+from clrecon.core.resources import code_digest
 
 # -- the measure ------------------------------------------------------------------------------
 
@@ -205,7 +206,7 @@ def test_converge_end_to_end_and_resume(device, tmp_path, monkeypatch):
     again = _study(device, tmp_path)
     assert again["rows"] == rep["rows"]
     # a group without its summary is summarised again from the cached images
-    cells = tmp_path / "cells" / "24x16" / "fence"
+    cells = tmp_path / "cells" / code_digest() / "24x16" / "fence"
     summary = next(cells.glob("box-*/spp4_ref16.json"))
     summary.unlink()
     def numbers(rows):  # run_s: the wall time of runs, none when only summarised
@@ -213,6 +214,19 @@ def test_converge_end_to_end_and_resume(device, tmp_path, monkeypatch):
 
     assert numbers(_study(device, tmp_path)["rows"]) == numbers(rep["rows"])
     assert summary.exists()
+    # other code (a changed module or kernel: another digest) reuses nothing: it measures
+    monkeypatch.setattr(cv, "code_digest", lambda: "0" * 16)
+    with pytest.raises(AssertionError, match="the cache should have served this"):
+        _study(device, tmp_path)
+
+
+def test_code_digest_follows_the_code():
+    """The digest covers the package's modules and the kernels, and is stable in a process."""
+    from clrecon.core import resources
+    d = code_digest()
+    assert len(d) == 16 and int(d, 16) >= 0 and code_digest() == d
+    resources.code_digest.cache_clear()
+    assert resources.code_digest() == d  # the same files, the same digest
 
 
 def test_converge_with_the_random_sampler(device, tmp_path):
@@ -224,8 +238,8 @@ def test_converge_with_the_random_sampler(device, tmp_path):
 
     rep = _study(device, tmp_path, sampler="random")
     assert rep["config"]["sampler"] == "random"
-    assert (tmp_path / "cells" / "24x16-random" / "fence").is_dir()
-    assert not (tmp_path / "cells" / "24x16").exists()
+    assert (tmp_path / "cells" / code_digest() / "24x16-random" / "fence").is_dir()
+    assert not (tmp_path / "cells" / code_digest() / "24x16").exists()
     assert "samples: random" in (tmp_path / "convergence.md").read_text()
     ref = load_image(tmp_path / "references" / "fence_24x16_16spp_seed1.exr")
     bufs = [render_samples(get_scene("fence"), 24, 16, 4, seed=cv.sample_seed(i, 4),
@@ -238,7 +252,7 @@ def test_converge_with_the_random_sampler(device, tmp_path):
 def test_converge_removes_summarised_images(device, tmp_path):
     _trusted()
     _study(device, tmp_path)
-    cells = tmp_path / "cells" / "24x16" / "fence"
+    cells = tmp_path / "cells" / code_digest() / "24x16" / "fence"
     summaries = list(cells.glob("*/spp*_ref16.json"))
     assert summaries
     for path in summaries:
@@ -322,4 +336,4 @@ def test_converge_records_a_setting_that_fails(device, tmp_path, monkeypatch):
         else:
             assert "1 non-finite pixels" in r["error"] and "mse" not in r
     assert "non-finite" in (tmp_path / "convergence.md").read_text()
-    assert not list((tmp_path / "cells").glob("*/*/sweep-*/spp*_ref16.json"))
+    assert not list((tmp_path / "cells").glob("*/*/*/sweep-*/spp*_ref16.json"))
