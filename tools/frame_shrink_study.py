@@ -44,7 +44,6 @@ from clrecon.methods import safeguard as sg
 from clrecon.methods import safeguard_reference as sr
 from clrecon.methods.safeguard_passes import (
     FDR_BINS,
-    FDR_MODE_RADIUS,
     FDR_SCALE,
     bias_tests,
     models_covariance,
@@ -140,15 +139,13 @@ def z_figure(path, hist, title: str) -> None:
     is what that null counts as noise."""
     plt = pyplot()
     b = FDR_BINS
-    hist = np.asarray(hist, np.int64)
-    sc = np.concatenate([hist[b:][::-1], hist[:b]])
+    sc = sr.signed_counts(hist)
     z = (np.arange(2 * b) - b + 0.5) / FDR_SCALE
-    r = FDR_MODE_RADIUS
-    smoothed = np.convolve(sc, r + 1 - np.abs(np.arange(-r, r + 1)))[r:r + 2 * b]
+    smoothed = sr.smoothed_counts(sc)
     mu, sigma, n0 = sr.normal_null(smoothed, int(sc.sum()))
     normal = n0 / (sigma * np.sqrt(2 * np.pi)) * np.exp(-0.5 * ((z - mu) / sigma) ** 2) \
         / FDR_SCALE
-    m = min(2 * int(np.argmax(smoothed)), 2 * b - 1)  # the mirror: bin k to m - k
+    m = sr.mode_mirror(smoothed)  # bin k mirrors to m - k
     mirror = np.where(z > 0, sc[np.clip(m - np.arange(2 * b), 0, 2 * b - 1)], np.nan)
     fig, ax = plt.subplots(figsize=(7.0, 3.6))
     ax.step(z[1:-1], np.maximum(sc[1:-1], 0.5), where="mid", color="k", lw=0.8,

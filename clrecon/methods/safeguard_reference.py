@@ -155,6 +155,27 @@ def normal_null(smoothed: np.ndarray, total: int) -> tuple[float, float, float]:
     return mu, sigma, n0
 
 
+def signed_counts(hist: np.ndarray) -> np.ndarray:
+    """The frame's counts by signed bin of z (2 FDR_BINS, z from ``-FDR_BINS / FDR_SCALE``
+    up) from the kernels' layout (``|z|``'s bins of the positive means, then the negative
+    ones')."""
+    hist = np.asarray(hist, np.int64)
+    return np.concatenate([hist[FDR_BINS:][::-1], hist[:FDR_BINS]])
+
+
+def smoothed_counts(sc: np.ndarray) -> np.ndarray:
+    """Signed counts weighted by the kernels' triangle of +-:data:`FDR_MODE_RADIUS` bins
+    (``smoothed_count`` of ``kernels/safeguard_fdr.cl``), integers."""
+    r = FDR_MODE_RADIUS
+    return np.convolve(sc, r + 1 - np.abs(np.arange(-r, r + 1)))[r:r + 2 * FDR_BINS]
+
+
+def mode_mirror(smoothed: np.ndarray) -> int:
+    """The mirror of the ``"mode"`` null: signed bin ``k`` mirrors to ``m - k``, ``m`` twice
+    the first peak bin of ``smoothed``, never past 0."""
+    return min(2 * int(np.argmax(smoothed)), 2 * FDR_BINS - 1)
+
+
 def shrink_table_of(hist: np.ndarray, null: str = "normal") -> np.ndarray:
     """:func:`fdr_shrink_table` from the frame's histogram as ``safeguard_fdr_rows`` lays it
     out, summed over rows (2 FDR_BINS counts: ``|z|``'s bins of the positive means, then of
@@ -163,10 +184,9 @@ def shrink_table_of(hist: np.ndarray, null: str = "normal") -> np.ndarray:
     above 0) or about 0 (``"zero"``): ``N(t)`` the means with ``z <= 2 mode - t``."""
     if null not in NULLS:
         raise ValueError(f"null: one of {NULLS}, got {null!r}")
-    b, r = FDR_BINS, FDR_MODE_RADIUS
-    hist = np.asarray(hist, np.int64)
-    sc = np.concatenate([hist[b:][::-1], hist[:b]])  # signed bins: z from -b / FDR_SCALE up
-    smoothed = np.convolve(sc, r + 1 - np.abs(np.arange(-r, r + 1)))[r:r + 2 * b]
+    b = FDR_BINS
+    sc = signed_counts(hist)
+    smoothed = smoothed_counts(sc)
     below = np.concatenate([[0], np.cumsum(sc)])  # below[i]: the bins < i
     top = np.arange(b)
     pos = below[2 * b] - below[b + top]
@@ -175,7 +195,7 @@ def shrink_table_of(hist: np.ndarray, null: str = "normal") -> np.ndarray:
         neg = n0 * 0.5 * np.array([erfc((t / FDR_SCALE - mu) / (sigma * sqrt(2.0)))
                                    for t in top])
     else:
-        m = 2 * b - 1 if null == "zero" else min(2 * int(np.argmax(smoothed)), 2 * b - 1)
+        m = 2 * b - 1 if null == "zero" else mode_mirror(smoothed)
         neg = below[np.clip(m - b - top + 1, 0, 2 * b)]
     with np.errstate(divide="ignore", invalid="ignore"):
         fdr = np.where(pos > 0, np.minimum(1.0, neg / np.maximum(pos, 1)), 1.0)

@@ -226,12 +226,6 @@ def _normal_counts(n, mu, sigma):
     return np.round(n * np.diff(cdf)).astype(np.int64)
 
 
-def _smoothed(counts):
-    """Signed bins' counts weighted by the kernels' triangle (safeguard_fdr_shrink)."""
-    r = sr.FDR_MODE_RADIUS
-    return np.convolve(counts, r + 1 - np.abs(np.arange(-r, r + 1)))[r:r + 2 * FDR_BINS]
-
-
 def test_normal_null_known_answers():
     """The normal null matched to the frame's peak: 200 000 noise pixels as N(-0.5, 1.3^2)
     give back its mode, width and count (to a bin, 3% and 3%), and 2000 biased ones at z 5
@@ -243,7 +237,8 @@ def test_normal_null_known_answers():
     noise = _normal_counts(200_000, -0.5, 1.3)
     biased = np.zeros(2 * FDR_BINS, np.int64)
     biased[FDR_BINS + 160] = 2000  # z 5.0 to 5.03
-    mu, sigma, n0 = sr.normal_null(_smoothed(noise + biased), int((noise + biased).sum()))
+    frame = noise + biased
+    mu, sigma, n0 = sr.normal_null(sr.smoothed_counts(frame), int(frame.sum()))
     assert abs(mu + 0.5) <= 1.0 / FDR_SCALE, mu
     assert abs(sigma / 1.3 - 1) < 0.03 and abs(n0 / 200_000 - 1) < 0.03, (sigma, n0)
     table = shrink_table_of(_signed_hist(noise + biased))
@@ -253,7 +248,7 @@ def test_normal_null_known_answers():
     assert np.array_equal(shrink_table_of(_signed_hist(tail + biased)), table)
     assert shrink_table_of(_signed_hist(tail + biased), "mode")[128] < 0.5 < table[128]
     up = _normal_counts(200_000, 0.8, 1.0)
-    assert sr.normal_null(_smoothed(up), int(up.sum()))[:2] == (0.0, 1.0)
+    assert sr.normal_null(sr.smoothed_counts(up), int(up.sum()))[:2] == (0.0, 1.0)
     assert np.array_equal(shrink_table_of(np.zeros(2 * FDR_BINS, np.int64)),
                           np.zeros(FDR_BINS))
 
