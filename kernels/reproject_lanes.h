@@ -3,7 +3,9 @@
  *
  *   VW, floatv, intv, VLOAD.. the lane width (SPP's largest factor among 8 and 4; 1 otherwise)
  *                            and its vector types and loads; COLOR_LANES the lanes' colours
- *   lane_bits(m)             bit j set where lane j of mask m is set (VW > 1)
+ *   LANE_IDS, LANE_BITS      the lanes' indices and bits, as intv
+ *   lane_bits(m), lane_mask  bit j set where lane j of mask m is set, and back (VW > 1)
+ *   LANE_CELLS(...)          the lanes' grid cells, a lane not in a mask sent to a spare one
  *   bucket_lanes(w, ...)     layered_bucket of VW depths, as float (VW > 1)
  *   reproject_lanes(...)     the depth buckets and grid positions of VW samples (below)
  * Include after SPP is defined (reproject.cl's defaults); needs layered.h.
@@ -40,6 +42,8 @@ typedef int8 intv;
 #define VLOAD2 vload16
 #define CONVERT_FLOATV convert_float8
 #define CONVERT_UCHARV convert_uchar8
+#define LANE_IDS ((intv)(0, 1, 2, 3, 4, 5, 6, 7))
+#define LANE_BITS ((intv)(1, 2, 4, 8, 16, 32, 64, 128))
 /* COLOR_LANES(dst, src): the 3 VW floats of VW samples' colours from src into dst */
 #define COLOR_LANES(dst, src) \
     (vstore16(vload16(0, (src)), 0, (dst)), vstore8(vload8(0, (src) + 16), 0, (dst) + 16))
@@ -52,6 +56,8 @@ typedef int4 intv;
 #define VLOAD2 vload8
 #define CONVERT_FLOATV convert_float4
 #define CONVERT_UCHARV convert_uchar4
+#define LANE_IDS ((intv)(0, 1, 2, 3))
+#define LANE_BITS ((intv)(1, 2, 4, 8))
 #define COLOR_LANES(dst, src) \
     (vstore8(vload8(0, (src)), 0, (dst)), vstore4(vload4(0, (src) + 8), 0, (dst) + 8))
 #endif
@@ -61,14 +67,25 @@ typedef int4 intv;
 inline uint lane_bits(intv m)
 {
 #if VW == 8
-    const intv b = m & (intv)(1, 2, 4, 8, 16, 32, 64, 128);
+    const intv b = m & LANE_BITS;
     const int4 h = b.lo | b.hi;
 #else
-    const int4 h = m & (int4)(1, 2, 4, 8);
+    const int4 h = m & LANE_BITS;
 #endif
     const int2 q = h.lo | h.hi;
     return (uint)(q.x | q.y);
 }
+
+/* Lane j of the mask (all ones) where bit j of bits is set: lane_bits's inverse. */
+inline intv lane_mask(uint bits)
+{
+    return ((intv)((int)bits) & LANE_BITS) != (intv)(0);
+}
+
+/* LANE_CELLS(dst, ia, m, spare): lane j's cell ia[j] into dst[j] where bit j of m is set,
+ * else its spare cell spare + j */
+#define LANE_CELLS(dst, ia, m, spare) \
+    VSTORE(select((intv)(spare) + LANE_IDS, VLOAD(0, (ia)), lane_mask(m)), 0, (dst))
 
 /* layered_bucket of VW depths, as float (the scalar expression in every lane) */
 inline floatv bucket_lanes(floatv w, float ka, float kb, float kc)

@@ -127,8 +127,9 @@ def test_reproject_refuses_a_short_buckets_buffer(device, rng):
 
 @pytest.mark.parametrize("spp", [4, 8])
 def test_reproject_local_accumulation_gives_the_same_grids(device, rng, spp):
-    """The owner of a slot adds its own channels into local memory (a float4 per cell) where
-    it fits, else into the grids' planes: the same adds in the same order, so the same bits."""
+    """The owner of a slot adds its channels into local memory (a float4 and a float per cell)
+    where they fit, else into the grids' planes: the same adds in the same order, so the same
+    bits."""
     buf, layout, params, shape, k = frame_and_params(rng, spp)
     q = device.queue
     samples, dparams = upload(q, buf), to_device(q, params)
@@ -147,6 +148,6 @@ def test_reproject_local_accumulation_gives_the_same_grids(device, rng, spp):
 
 
 def test_reproject_local_accumulation_needs_the_room(device):
-    layout = geom.Layout(tile=128, gmax=256)  # 16 * 640^2 bytes: beyond any device's local memory
-    with pytest.raises(ValueError, match="local_acc: needs 6553600 bytes"):
+    layout = geom.Layout(tile=128, gmax=256)  # 20 * (640^2 + 8) bytes: beyond any local memory
+    with pytest.raises(ValueError, match="local_acc: needs 8192160 bytes"):
         Reproject(device.context, layout, False, LocalSize(1, 1), local_acc=True)

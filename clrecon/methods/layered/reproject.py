@@ -33,10 +33,12 @@ class Reproject:
         wg = local.x if local and local.x else 1
         self.local = LocalSize(wg, 1)
         self.fixed = bool(fixed)
-        # the owner (one item) of a slot keeps its own channels in local memory, a float4 per
-        # grid cell (kernels/reproject.cl: OWN_LOCAL), where the device has room for them
-        # (local_acc None; False: in the grids, as the items of a group do)
-        need, have = 16 * layout.dmax ** 2, min(d.local_mem_size for d in context.devices)
+        # the owner (one item) of a slot keeps its channels in local memory, a float4 and a
+        # float per grid cell and per lane's spare cell (kernels/reproject.cl: OWN_LOCAL),
+        # where the device has room for them (local_acc None; False: in the grids, as the
+        # items of a group do)
+        need = 20 * (layout.dmax ** 2 + 8)
+        have = min(d.local_mem_size for d in context.devices)
         room = need <= have
         if local_acc and not room:
             raise ValueError(f"local_acc: needs {need} bytes of local memory; the device has "
