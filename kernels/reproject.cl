@@ -33,7 +33,8 @@
  * adds: bit-identical run to run. The atomics are the group's own (one group per slot), so
  * a barrier orders accumulation and conversion.
  * LOCAL_ACC == 1 (the host: 20 (DMAX^2 + 8) bytes of local memory fit): with WG_X == 1 a
- * nearest splat's channels accumulate in local memory (OWN_LOCAL below).
+ * nearest splat's own channels accumulate in local memory (OWN_LOCAL below; OWN_SPARE: its
+ * behind counts too).
  * Compile-time: SPP, TILE, NBUCKETS, MAXP, GMAX, HAS_MOTION, SPLAT_BILINEAR, SUBSAMPLE,
  * FIXED, LOCAL_ACC. The vector lanes (VW samples of a pixel at once) are in
  * reproject_lanes.h.
@@ -70,18 +71,7 @@
 #error "FIXED needs cl_khr_int64_base_atomics"
 #endif
 
-#include "reproject_lanes.h"  /* VW: several samples of a pixel at once */
-
-/* Hash of block row cy for blocks of side sub: it picks the row and column offset of the
- * pixel read from every block of that row. */
-inline uint row_hash(int cy, int sub)
-{
-    uint h = ((uint)cy * 0xd8163841u) ^ ((uint)sub * 0xcb1ab31fu);
-    h ^= h >> 13;
-    h *= 0x85ebca6bu;
-    h ^= h >> 16;
-    return h;
-}
+#include "reproject_lanes.h"  /* VW: several samples of a pixel at once; row_hash */
 
 /* GRID_ADD(p, v, s): add v at p of the accumulation grid (s: FIXED's scale of p's channel) */
 #if FIXED
@@ -114,13 +104,14 @@ inline void splat(__global ACC *grid, int dim, int gx, int gy, float wt, float3 
 }
 
 /* OWN_LOCAL: the owner (one work-item, plain adds) of a nearest-splat slot accumulates its
- * own channels as one float4 (r, g, b, weight) per cell and its behind count as a float per
- * cell in local memory, each with VW spare cells past DMAX^2 (the dropped lanes' adds, see
- * below), and writes the planes at the end: one vector add a sample instead of four scalar
- * ones into planes DMAX^2 floats (a multiple of 4 KiB) apart, which the CPU's store-to-load
- * checks partly serialise (4K aliasing). Measured at 1280x720 8 spp (deep, PoCL): 1.05-1.1x.
- * The same adds in the same order: the same sums. */
+ * own channels as one float4 (r, g, b, weight) per cell in local memory and writes the planes
+ * at the end: one vector add a sample instead of four scalar ones into planes DMAX^2 floats
+ * (a multiple of 4 KiB) apart, which the CPU's store-to-load checks partly serialise (4K
+ * aliasing). Measured at 1280x720 8 spp (deep, PoCL): 1.05-1.1x. The same adds in the same
+ * order: the same sums. */
 #define OWN_LOCAL (LOCAL_ACC && WG_X == 1 && !FIXED && !SPLAT_BILINEAR && VW > 1)
+/* OWN_SPARE: one frame's pass (not JOINT_HA) adds its lanes without a branch (see reproject) */
+#define OWN_SPARE (OWN_LOCAL && !JOINT_HA)
 
 /* the grid that sample i of a pixel adds to: with JOINT_HA, half A's (grids) or B's */
 #if JOINT_HA
@@ -165,12 +156,13 @@ void reproject(__global const float *color, __global const float *position,
 #endif
                )
 {
-#if OWN_LOCAL
+#if OWN_SPARE   /* VW spare cells past the grid's */
     __local float4 own_acc[DMAX * DMAX + VW];
     __local float behind_acc[DMAX * DMAX + VW];
+#elif OWN_LOCAL
+    __local float4 own_acc[DMAX * DMAX];
 #if JOINT_HA
-    __local float4 own_acc_b[DMAX * DMAX + VW];
-    __local float behind_acc_b[DMAX * DMAX + VW];
+    __local float4 own_acc_b[DMAX * DMAX];
 #endif
 #endif
     const int slot = get_group_id(0), lid = get_local_id(0);
@@ -202,10 +194,14 @@ void reproject(__global const float *color, __global const float *position,
 #if OWN_LOCAL
     for (int k = 0; k < dim * dim; ++k) {
         own_acc[k] = (float4)(0.0f);
+#if OWN_SPARE
         behind_acc[k] = 0.0f;
+#else
+        acc[4 * DMAX * DMAX + k] = 0.0f;
+#endif
 #if JOINT_HA
         own_acc_b[k] = (float4)(0.0f);
-        behind_acc_b[k] = 0.0f;
+        acc_b[4 * DMAX * DMAX + k] = 0.0f;
 #endif
     }
 #else
@@ -274,6 +270,24 @@ void reproject(__global const float *color, __global const float *position,
                 if (mo_all)
                     COLOR_LANES(ca, color + 3 * (base + i0));
 #endif
+#if OWN_SPARE
+                /* every lane adds, without a branch: a lane not own (not behind) adds to its own
+                 * spare cell DMAX^2 + j; the loops over set bits below mispredicted their exits
+                 * (reproject 1.15-1.2x faster, deep 1280x720 8 spp, PoCL; with JOINT_HA they
+                 * were faster, 75 against 85 ms). Each cell's adds in the loops' order. */
+                const intv iv = VLOAD(0, ia);
+                int ic[VW];
+                if (mo_all) {
+                    LANE_CELLS(ic, iv, mo_all, DMAX * DMAX);
+                    for (int j = 0; j < VW; ++j)
+                        own_acc[ic[j]] += (float4)(vload3(j, ca), 1.0f);
+                }
+                if (mb_all) {
+                    LANE_CELLS(ic, iv, mb_all, DMAX * DMAX);
+                    for (int j = 0; j < VW; ++j)
+                        behind_acc[ic[j]] += 1.0f;
+                }
+#else
 #if JOINT_HA
                 /* half A's lanes (samples below JOINT_HA) into grids, then half B's into
                  * grids_b: each grid gets its half's adds in the order its own pass makes */
@@ -283,52 +297,33 @@ void reproject(__global const float *color, __global const float *position,
                     __global ACC *hacc = h ? acc_b : acc;
 #if OWN_LOCAL
                     __local float4 *hown = h ? own_acc_b : own_acc;
-                    __local float *hbehind = h ? behind_acc_b : behind_acc;
 #endif
 #else
-                {
+                {   /* (OWN_LOCAL here is OWN_SPARE's, above) */
                     uint mo = mo_all, mb = mb_all;
                     __global ACC *hacc = acc;
-#if OWN_LOCAL
-                    __local float4 *hown = own_acc;
-                    __local float *hbehind = behind_acc;
 #endif
-#endif
-#if OWN_LOCAL
-                /* every lane adds, without a branch: a lane not own (not behind) adds to its own
-                 * spare cell past the grid, DMAX^2 + j (the loops over set bits mispredicted
-                 * their exits: reproject 1.2x faster, deep 1280x720 8 spp, PoCL). A cell gets
-                 * the same adds in the same order as the loop over set bits gave it: the same
-                 * sums. Behind counts are local too, written out with the own channels. */
-                int ic[VW];
-                if (mo) {
-                    LANE_CELLS(ic, ia, mo, DMAX * DMAX);
-                    for (int j = 0; j < VW; ++j)
-                        hown[ic[j]] += (float4)(vload3(j, ca), 1.0f);
-                }
-                if (mb) {
-                    LANE_CELLS(ic, ia, mb, DMAX * DMAX);
-                    for (int j = 0; j < VW; ++j)
-                        hbehind[ic[j]] += 1.0f;
-                }
-#else
                 while (mo) {
                     const int j = 31 - clz(mo & (0u - mo));
                     mo &= mo - 1u;
+#if OWN_LOCAL
+                    hown[ia[j]] += (float4)(vload3(j, ca), 1.0f);
+#else
                     __global ACC *cell = hacc + ia[j];
                     const float3 c = vload3(base + i0 + j, color);
                     GRID_ADD(cell, c.x, sc.x);
                     GRID_ADD(cell + DMAX * DMAX, c.y, sc.y);
                     GRID_ADD(cell + 2 * DMAX * DMAX, c.z, sc.z);
                     GRID_ADD(cell + 3 * DMAX * DMAX, 1.0f, sc.w);
+#endif
                 }
                 while (mb) {
                     const int j = 31 - clz(mb & (0u - mb));
                     mb &= mb - 1u;
                     GRID_ADD(hacc + ia[j] + 4 * DMAX * DMAX, 1.0f, sc.w);
                 }
-#endif
                 }
+#endif
 #else
                 for (int j = 0; j < VW; ++j) {
                     const int b = (int)bka[j];
@@ -365,14 +360,15 @@ void reproject(__global const float *color, __global const float *position,
         grid[DMAX * DMAX + k] = v.y;
         grid[2 * DMAX * DMAX + k] = v.z;
         grid[3 * DMAX * DMAX + k] = v.w;
+#if OWN_SPARE
         grid[4 * DMAX * DMAX + k] = behind_acc[k];
+#endif
 #if JOINT_HA
         const float4 u = own_acc_b[k];
         grid_b[k] = u.x;
         grid_b[DMAX * DMAX + k] = u.y;
         grid_b[2 * DMAX * DMAX + k] = u.z;
         grid_b[3 * DMAX * DMAX + k] = u.w;
-        grid_b[4 * DMAX * DMAX + k] = behind_acc_b[k];
 #endif
     }
 #endif

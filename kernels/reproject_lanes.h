@@ -8,6 +8,7 @@
  *   LANE_CELLS(...)          the lanes' grid cells, a lane not in a mask sent to a spare one
  *   bucket_lanes(w, ...)     layered_bucket of VW depths, as float (VW > 1)
  *   reproject_lanes(...)     the depth buckets and grid positions of VW samples (below)
+ *   row_hash(cy, sub)        which pixel of each sub x sub block of a block row is read
  * Include after SPP is defined (reproject.cl's defaults); needs layered.h.
  */
 #ifndef CLRECON_REPROJECT_LANES_H
@@ -82,10 +83,10 @@ inline intv lane_mask(uint bits)
     return ((intv)((int)bits) & LANE_BITS) != (intv)(0);
 }
 
-/* LANE_CELLS(dst, ia, m, spare): lane j's cell ia[j] into dst[j] where bit j of m is set,
- * else its spare cell spare + j */
-#define LANE_CELLS(dst, ia, m, spare) \
-    VSTORE(select((intv)(spare) + LANE_IDS, VLOAD(0, (ia)), lane_mask(m)), 0, (dst))
+/* LANE_CELLS(dst, iv, m, spare): lane j of the cells iv (intv) into dst[j] where bit j of m
+ * is set, else its spare cell spare + j */
+#define LANE_CELLS(dst, iv, m, spare) \
+    VSTORE(select((intv)(spare) + LANE_IDS, (iv), lane_mask(m)), 0, (dst))
 
 /* layered_bucket of VW depths, as float (the scalar expression in every lane) */
 inline floatv bucket_lanes(floatv w, float ka, float kb, float kc)
@@ -98,6 +99,17 @@ inline floatv bucket_lanes(floatv w, float ka, float kb, float kc)
     return select((floatv)(NBUCKETS - 1), l, isless(w, (floatv)(MISS_DEPTH)));
 }
 #endif
+
+/* Hash of block row cy for blocks of side sub: it picks the row and column offset of the
+ * pixel read from every block of that row. */
+inline uint row_hash(int cy, int sub)
+{
+    uint h = ((uint)cy * 0xd8163841u) ^ ((uint)sub * 0xcb1ab31fu);
+    h ^= h >> 13;
+    h *= 0x85ebca6bu;
+    h ^= h >> 16;
+    return h;
+}
 
 inline int reproject_lanes(size_t s0, size_t k0, __global const float *position,
                            __global const uchar *buckets, __global const float *lens,
