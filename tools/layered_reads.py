@@ -17,11 +17,8 @@ import pyopencl as cl
 
 from clrecon.bench.scripts import add_frame_options, emit_page, frame_of
 from clrecon.bench.timing import PipelineRun
-from clrecon.methods.layered.layout import subsample_cap
+from clrecon.methods.layered.layout import NPAR, P_DIM, P_REACH, P_SCALE, subsample_cap
 from clrecon.methods.layered.reference import row_hash
-
-# the slot parameters this count needs (kernels/layered.h's enum)
-P_SCALE, P_REACH, P_DIM, NPAR = 14, 16, 17, 20
 
 
 def slot_pixels(x0: int, y0: int, tile: int, reach: int, sub: int, w: int,
