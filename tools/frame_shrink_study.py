@@ -19,6 +19,7 @@ safeguard's NumPy reference (``clrecon.methods.safeguard_reference``) with the 7
 * ``q about 0``: the same with the frame's negative means as the null, mirrored about 0;
 * ``q about mode``: the same mirrored about the frame's mode of ``z`` (the lattice's form at
   8-15 spp on 2026-12-07).
+* ``q no3``: ``q normal`` without the 3x3 test (the guided chain's form below 32 spp).
 
 The halves' variances are scaled as the pipeline scales them: the lattice's by its measured
 convergence from 16 spp, independent samples' not at all. PSNR dB against the converged
@@ -58,7 +59,8 @@ SCENES = "fence,spheres,bokeh,deep,huge_coc,fast_motion"
 FORMS = {"untested": {}, "2 se": {"z7": sg.GUIDED_Z7}, "shrink": {"z7": sg.SHRINK_Z7},
          "q normal": {"frame_shrink": True},
          "q about 0": {"frame_shrink": True, "null": "zero"},
-         "q about mode": {"frame_shrink": True, "null": "mode"}}
+         "q about mode": {"frame_shrink": True, "null": "mode"},
+         "q no3": {"frame_shrink": True, "test3": False}}
 
 
 def pipeline_form(spp: int) -> str:
