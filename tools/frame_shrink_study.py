@@ -16,6 +16,9 @@ safeguard's NumPy reference (``clrecon.methods.safeguard_reference``) with the 7
   significance with a normal null matched to the frame's histogram of z (its central peak:
   Efron's empirical null), the undeclared samples' form from 8 spp
   (``safeguard_passes.shrinks_by_frame``, since 2026-12-08);
+* ``local``: scaled by ``1 - fdr``, ``fdr`` the frame's local false discovery rate in the
+  mean's bin of z (the null's expected count in the bin over the frame's smoothed count,
+  least of any bin at or below), the same null (measured, not in the kernels);
 * ``q about 0``: the same with the frame's negative means as the null, mirrored about 0;
 * ``q about mode``: the same mirrored about the frame's mode of ``z`` (the lattice's form at
   8-15 spp on 2026-12-07).
@@ -58,6 +61,7 @@ from clrecon.scenes.render import render_reference, render_samples
 SCENES = "fence,spheres,bokeh,deep,huge_coc,fast_motion"
 FORMS = {"untested": {}, "2 se": {"z7": sg.GUIDED_Z7}, "shrink": {"z7": sg.SHRINK_Z7},
          "q normal": {"frame_shrink": True},
+         "local": {"frame_shrink": True, "rate": "local"},
          "q about 0": {"frame_shrink": True, "null": "zero"},
          "q about mode": {"frame_shrink": True, "null": "mode"},
          "q no3": {"frame_shrink": True, "test3": False}}

@@ -92,17 +92,25 @@ def _z_bins(mu7: np.ndarray, var7: np.ndarray) -> np.ndarray:
 #: frame's negative means mirrored about its mode of z (``"mode"``) or about 0 (``"zero"``),
 #: measured in ``tools/frame_shrink_study.py``
 NULLS = ("normal", "mode", "zero")
+#: the rates :func:`shrink_table_of` takes: Efron's local false discovery rate (measured, not
+#: in the kernels: ``docs/measurements/frame-shrink-pocl.md``) and the tail area's q-value
+#: (the kernels')
+RATES = ("local", "tail")
 
 
 def fdr_shrink_table(mu7: np.ndarray, var7: np.ndarray, noisy=None,
-                     null: str = "normal") -> np.ndarray:
-    """The factors ``1 - q`` by bin of ``|z|`` (``kernels/safeguard_fdr.cl``:
-    ``safeguard_fdr_shrink``): ``q_j = min over i <= j of min(1, N(t_i) / R(t_i))``, ``R(t)``
+                     null: str = "normal", rate: str | None = None) -> np.ndarray:
+    """The factors ``1 - fdr`` by bin of ``|z|`` (``kernels/safeguard_fdr.cl``:
+    ``safeguard_fdr_shrink``; :func:`shrink_table_of`). ``rate="tail"`` (None; the
+    kernels'): the q-value ``fdr_j = min over i <= j of min(1, N(t_i) / R(t_i))``, ``R(t)``
     the pixels with ``mu7 > 0`` and ``|z| >= t``, ``N(t)`` the count the frame's null
-    expects there (:func:`shrink_table_of`; 1 where ``R(t) = 0``).
+    expects there (1 where ``R(t) = 0``). ``rate="local"`` (measured in
+    ``tools/frame_shrink_study.py``, not in the kernels): ``fdr_j = min over i <= j of
+    min(1, f0(t_i) / f(t_i))``, the null's expected count in bin ``i`` over the frame's
+    (Efron's local false discovery rate: the chance that a mean there is noise).
     ``noisy``: the pixels that count (None: all; the blend's, those whose 7x7 window of box
     shows noise: ``safeguard_fdr_rows``' ``noisy_only``)."""
-    return shrink_table_of(z_histogram(mu7, var7, noisy), null)
+    return shrink_table_of(z_histogram(mu7, var7, noisy), null, rate)
 
 
 def z_histogram(mu7: np.ndarray, var7: np.ndarray, noisy=None) -> np.ndarray:
@@ -176,17 +184,35 @@ def mode_mirror(smoothed: np.ndarray) -> int:
     return min(2 * int(np.argmax(smoothed)), 2 * FDR_BINS - 1)
 
 
-def shrink_table_of(hist: np.ndarray, null: str = "normal") -> np.ndarray:
+def shrink_table_of(hist: np.ndarray, null: str = "normal",
+                    rate: str | None = None) -> np.ndarray:
     """:func:`fdr_shrink_table` from the frame's histogram as ``safeguard_fdr_rows`` lays it
     out, summed over rows (2 FDR_BINS counts: ``|z|``'s bins of the positive means, then of
     the negative ones). ``null``: ``"normal"`` (:func:`normal_null`, what the kernels
     compute), or the frame's negative means mirrored about its mode (``"mode"``, never
-    above 0) or about 0 (``"zero"``): ``N(t)`` the means with ``z <= 2 mode - t``."""
+    above 0) or about 0 (``"zero"``): ``N(t)`` the means with ``z <= 2 mode - t`` (these
+    two with ``rate="tail"`` only). ``rate``: ``"tail"`` (None; the kernels'), or
+    ``"local"`` with the normal null (measured, not in the kernels): ``f(t_j)`` the frame's
+    smoothed count in bin ``j`` (:func:`smoothed_counts` over the triangle's weight),
+    ``f0(t_j)`` the normal's density at the bin's middle times the bin's width."""
     if null not in NULLS:
         raise ValueError(f"null: one of {NULLS}, got {null!r}")
+    rate = "tail" if rate is None else rate
+    if rate not in RATES or (rate == "local" and null != "normal"):
+        raise ValueError(f"rate: one of {RATES} ({RATES[0]!r} with the normal null), got "
+                         f"{rate!r} with {null!r}")
     b = FDR_BINS
     sc = signed_counts(hist)
     smoothed = smoothed_counts(sc)
+    if rate == "local":
+        mu, sigma, n0 = normal_null(smoothed, int(np.sum(sc)))
+        mid = (np.arange(b) + 0.5) / FDR_SCALE
+        f0 = n0 * np.exp(-0.5 * ((mid - mu) / sigma) ** 2) / (sigma * sqrt(2.0 * np.pi)
+                                                                * FDR_SCALE)
+        f = smoothed[b:].astype(np.float64) / (FDR_MODE_RADIUS + 1) ** 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            fdr = np.where(f > 0, np.minimum(1.0, f0 / np.where(f > 0, f, 1.0)), 1.0)
+        return 1.0 - np.minimum.accumulate(fdr)
     below = np.concatenate([[0], np.cumsum(sc)])  # below[i]: the bins < i
     top = np.arange(b)
     pos = below[2 * b] - below[b + top]
@@ -202,23 +228,24 @@ def shrink_table_of(hist: np.ndarray, null: str = "normal") -> np.ndarray:
     return 1.0 - np.minimum.accumulate(fdr)
 
 
-def fdr_shrink(mu7: np.ndarray, var7: np.ndarray, noisy=None, null: str = "normal"):
+def fdr_shrink(mu7: np.ndarray, var7: np.ndarray, noisy=None, null: str = "normal",
+               rate: str | None = None):
     """``mu7`` scaled by its bin's factor (:func:`fdr_shrink_table`) where positive, else 0."""
-    t = fdr_shrink_table(mu7, var7, noisy, null)
+    t = fdr_shrink_table(mu7, var7, noisy, null, rate)
     return np.where(mu7 > 0, mu7 * t[_z_bins(mu7, var7)], 0.0)
 
 
 def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEND,
               z7: float = 0.0, test3: bool = True, cov: bool | None = None,
               vscale: float | None = None, fdr_q: float | None = None,
-              frame_shrink: bool = False, null: str = "normal"):
+              frame_shrink: bool = False, null: str = "normal", rate: str | None = None):
     """(image, error) of the safeguard from the samples' colours (H, W, S, 3) and the
     method's images on the frame and on its halves (H, W, 3); float64. ``m=None`` (with
     the halves given): the method's image is the halves' mean ``(ha mA + hb mB) / S``.
     The halves' variances are scaled by ``vscale`` (None: :func:`variance_scale`, the
     frame's measured factor; 1: declared independent samples); ``cov`` (None: from 16 spp,
     as the pipeline: ``safeguard_passes.models_covariance``) and ``fdr_q`` as for
-    :func:`reference_of_halves`, and ``frame_shrink`` and ``null``."""
+    :func:`reference_of_halves`, and ``frame_shrink``, ``null`` and ``rate``."""
     s = color.shape[2]
     ha, hb = halves(s)
     if m is None and ma is not None:
@@ -227,7 +254,7 @@ def reference(color: np.ndarray, m=None, ma=None, mb=None, mode: int = MODE_BLEN
     cov = models_covariance(s) if cov is None else bool(cov)
     return reference_of_halves(c[:, :, :ha].mean(2), c[:, :, ha:].mean(2), ha, hb, m, ma, mb,
                                mode, z7, variance_scale(c) if vscale is None else vscale,
-                               test3, cov, fdr_q, frame_shrink, null)[:2]
+                               test3, cov, fdr_q, frame_shrink, null, rate)[:2]
 
 
 def window7(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -267,7 +294,8 @@ def bias_terms(a, b, ha: int, hb: int, m=None, ma=None, mb=None, vscale: float =
 def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
                         mode: int = MODE_BLEND, z7: float = 0.0, vscale: float = 1.0,
                         test3: bool = True, cov: bool = False, fdr_q: float | None = None,
-                        frame_shrink: bool = False, null: str = "normal"):
+                        frame_shrink: bool = False, null: str = "normal",
+                        rate: str | None = None):
     """(image, error, w) of the safeguard from the unbiased estimate's halves ``a``, ``b``
     ((H, W, 3): the samples' means of ``ha`` and ``hb`` samples, or any two independent
     half estimates, as the guided refinement's blend toward its guide takes) and the
@@ -282,8 +310,9 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     ``e = d2 + vm - vb`` (``safeguard_passes.models_covariance``). ``fdr_q``: the 7x7 test's
     z is :func:`fdr_threshold`'s at that rate (the guided chain), not ``z7``.
     ``frame_shrink``: the 7x7 mean scaled by the frame's q-value (:func:`fdr_shrink`; a
-    method's own blend from 8 spp on undeclared samples), ``z7`` unused; ``null``: its
-    null (:func:`shrink_table_of`; the kernels': ``"normal"``)."""
+    method's own blend from 8 spp on undeclared samples), ``z7`` unused; ``null`` and
+    ``rate``: its null and rate (:func:`shrink_table_of`; the kernels': ``"normal"``,
+    ``"tail"``)."""
     if mode == MODE_BOX:
         box, vb = bias_terms(a, b, ha, hb, vscale=vscale)[:2]
         return box, np.minimum(_window_mean(vb, 1), _FLT_MAX), None
@@ -294,7 +323,7 @@ def reference_of_halves(a, b, ha: int, hb: int, m=None, ma=None, mb=None,
     se3 = np.sqrt(np.maximum(_window_mean(e * e, 1) - mu3 * mu3, 0.0) / n3)
     mu7, var7 = window7(e)
     if frame_shrink:
-        mu7 = fdr_shrink(mu7, var7, noisy7(vb), null)
+        mu7 = fdr_shrink(mu7, var7, noisy7(vb), null, rate)
     elif z7 != 0 or fdr_q is not None:
         z7 = z7 if fdr_q is None else fdr_threshold(mu7, var7, fdr_q)
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -229,7 +229,9 @@ def _normal_counts(n, mu, sigma):
 def test_normal_null_known_answers():
     """The normal null matched to the frame's peak: 200 000 noise pixels as N(-0.5, 1.3^2)
     give back its mode, width and count (to a bin, 3% and 3%), and 2000 biased ones at z 5
-    keep their mean (their factor near 1) while a positive mean at z 1 is mostly noise. A
+    keep their mean (their factor near 1) while a positive mean at z 1 is mostly noise (and
+    by the local rate, measured not shipped, one at z 4 too, where the q-value keeps most of
+    it). A
     heavy negative tail (windows whose halves overstate the variance) leaves the table as
     it is, where the mirrored null would count it as noise among the positive means. A peak
     above 0 is the biased pixels': the null is then N(0, 1). An empty frame gives factors
@@ -243,10 +245,16 @@ def test_normal_null_known_answers():
     assert abs(sigma / 1.3 - 1) < 0.03 and abs(n0 / 200_000 - 1) < 0.03, (sigma, n0)
     table = shrink_table_of(_signed_hist(noise + biased))
     assert table[160] > 0.99 and table[32] < 0.5
+    # the local rate: a mean at z 4 is as likely noise as the null expects there, however
+    # many biased means lie above it; the tail area's q-value counts those in
+    local = shrink_table_of(_signed_hist(noise + biased), rate="local")
+    assert local[128] < 0.5 < table[128] and local[160] > 0.99
     tail = noise.copy()
     tail[FDR_BINS - 192:FDR_BINS - 128] += 500  # 32 000 means at z -6 to -4
     assert np.array_equal(shrink_table_of(_signed_hist(tail + biased)), table)
     assert shrink_table_of(_signed_hist(tail + biased), "mode")[128] < 0.5 < table[128]
+    with pytest.raises(ValueError, match="rate"):
+        shrink_table_of(_signed_hist(noise), "mode", rate="local")
     up = _normal_counts(200_000, 0.8, 1.0)
     assert sr.normal_null(sr.smoothed_counts(up), int(up.sum()))[:2] == (0.0, 1.0)
     assert np.array_equal(shrink_table_of(np.zeros(2 * FDR_BINS, np.int64)),
