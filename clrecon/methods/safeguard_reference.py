@@ -204,27 +204,24 @@ def shrink_table_of(hist: np.ndarray, null: str = "normal",
     b = FDR_BINS
     sc = signed_counts(hist)
     smoothed = smoothed_counts(sc)
-    if rate == "local":
-        mu, sigma, n0 = normal_null(smoothed, int(np.sum(sc)))
-        mid = (np.arange(b) + 0.5) / FDR_SCALE
-        f0 = n0 * np.exp(-0.5 * ((mid - mu) / sigma) ** 2) / (sigma * sqrt(2.0 * np.pi)
-                                                                * FDR_SCALE)
-        f = smoothed[b:].astype(np.float64) / (FDR_MODE_RADIUS + 1) ** 2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            fdr = np.where(f > 0, np.minimum(1.0, f0 / np.where(f > 0, f, 1.0)), 1.0)
-        return 1.0 - np.minimum.accumulate(fdr)
     below = np.concatenate([[0], np.cumsum(sc)])  # below[i]: the bins < i
     top = np.arange(b)
-    pos = below[2 * b] - below[b + top]
     if null == "normal":
         mu, sigma, n0 = normal_null(smoothed, int(below[-1]))
-        neg = n0 * 0.5 * np.array([erfc((t / FDR_SCALE - mu) / (sigma * sqrt(2.0)))
-                                   for t in top])
-    else:
-        m = 2 * b - 1 if null == "zero" else mode_mirror(smoothed)
-        neg = below[np.clip(m - b - top + 1, 0, 2 * b)]
+    if rate == "local":  # the null's count in each bin against the frame's (smoothed) there
+        u = ((top + 0.5) / FDR_SCALE - mu) / sigma
+        neg = n0 * np.exp(-0.5 * u * u) / (sigma * sqrt(2.0 * np.pi) * FDR_SCALE)
+        pos = smoothed[b:].astype(np.float64) / (FDR_MODE_RADIUS + 1) ** 2
+    else:  # the null's count above each bin's edge against the frame's positive means there
+        pos = below[2 * b] - below[b + top]
+        if null == "normal":
+            neg = n0 * 0.5 * np.array([erfc((t / FDR_SCALE - mu) / (sigma * sqrt(2.0)))
+                                       for t in top])
+        else:
+            m = 2 * b - 1 if null == "zero" else mode_mirror(smoothed)
+            neg = below[np.clip(m - b - top + 1, 0, 2 * b)]
     with np.errstate(divide="ignore", invalid="ignore"):
-        fdr = np.where(pos > 0, np.minimum(1.0, neg / np.maximum(pos, 1)), 1.0)
+        fdr = np.where(pos > 0, np.minimum(1.0, neg / np.where(pos > 0, pos, 1)), 1.0)
     return 1.0 - np.minimum.accumulate(fdr)
 
 
